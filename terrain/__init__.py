@@ -1,0 +1,28 @@
+"""The terrain layer: grids and CRS, synthetic glaciers, satellite priors, GP reconstruction.
+
+``terrain`` is the base of glacimap (DESIGN.md §2): it imports nothing from ``survey``,
+``factorgraph`` or ``toolkit``.
+"""
+
+from .errors import (
+    CRSMismatchError,
+    DuplicateLocationError,
+    GlacimapError,
+    InputError,
+    JitterWarning,
+    NotFittedError,
+    NumericalError,
+)
+from .grid import DEFAULT_CRS, Grid
+
+__all__ = [
+    "DEFAULT_CRS",
+    "CRSMismatchError",
+    "DuplicateLocationError",
+    "GlacimapError",
+    "Grid",
+    "InputError",
+    "JitterWarning",
+    "NotFittedError",
+    "NumericalError",
+]
