@@ -14,12 +14,14 @@ from .errors import (
     NumericalError,
 )
 from .grid import DEFAULT_CRS, Grid
+from .samples import ElevationSamples
 
 __all__ = [
     "DEFAULT_CRS",
     "CRSMismatchError",
     "DuplicateLocationError",
     "GlacimapError",
+    "ElevationSamples",
     "Grid",
     "InputError",
     "JitterWarning",

@@ -1,0 +1,405 @@
+"""TerrainGP: exact Gaussian-process terrain reconstruction with per-point noise and a prior mean.
+
+Model (paper Section II): ``z_i = m(x_i) + f(x_i) + e_i`` with ``f ~ GP(0, k)`` (Eq 1 or a
+Matérn kernel), ``e_i ~ N(0, sigma_i^2 + nugget)`` (Eq 6: each sample's own elevation variance,
+plus an optional fitted nugget for noise the samples do not state), and ``m`` a prior mean: a
+constant, a triangulated satellite DEM (Section II-C), or any callable.
+
+The posterior follows Rasmussen & Williams, Algorithm 2.1 — not the paper's Eq 4-5, whose
+subscripts are swapped (DESIGN.md §5). The estimator has scikit-learn's shape: the constructor
+stores settings, ``fit`` validates and factors ``K`` once, every ``predict`` reuses the factor,
+no explicit inverse is formed for prediction, and the variance diagonal is computed chunk by
+chunk without the (m, m) posterior covariance.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any
+
+import numpy as np
+from scipy.linalg import cho_solve, solve_triangular
+from scipy.optimize import minimize
+
+from .errors import NotFittedError, NumericalError, bad_input
+from .grid import Grid, check_same_crs
+from .kernels import Kernel, SquaredExponential
+from .linalg import cholesky_jitter, inverse_from_cholesky
+from .prior import as_mean_function
+from .samples import ElevationSamples
+
+__all__ = ["TerrainGP"]
+
+_LOG_2PI = np.log(2.0 * np.pi)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("glacimap")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
+
+
+class TerrainGP:
+    """Exact GP regression of elevation on (easting, northing).
+
+    Parameters
+    ----------
+    kernel : Kernel, optional
+        Covariance of the terrain deviation from the mean, with its initial hyperparameters
+        and search bounds. Default: ``SquaredExponential`` (Eq 1) started at the residual
+        variance and a tenth of the data extent.
+    mean : "constant", float, xarray.DataArray or callable
+        Prior mean: ``"constant"`` is the mean of the observations (the paper's landmark-only
+        GP); a coarse DEM ``DataArray`` becomes a :class:`TriangulatedMean` (the paper's
+        satellite prior); a callable maps xy (n, 2) to z (n,).
+    nugget : float
+        Extra noise variance in m^2 added to every sample's own ``z_var`` (Eq 6).
+    nugget_bounds : tuple of float or "fixed"
+        Search bounds for the nugget; ``"fixed"`` keeps ``nugget`` as given (may be 0).
+    optimize : bool
+        Fit hyperparameters by maximizing the log marginal likelihood (Eq 9) with L-BFGS-B
+        on log-parameters.
+    n_restarts : int
+        Extra optimizer starts drawn uniformly in the log-bounds from the seeded generator.
+    max_fit_samples : int or None
+        Hyperparameters are fitted on at most this many samples, drawn at random (seeded,
+        without replacement); the posterior always uses every sample.
+    chunk_size : int or None
+        Query points per prediction chunk; default keeps each (chunk, n) block near 128 MB.
+    seed : int
+        Seed of the one ``numpy.random.Generator`` used (restarts, fit subset); recorded in
+        every product.
+
+    Attributes
+    ----------
+    kernel_ : Kernel
+        Kernel with the fitted hyperparameters.
+    nugget_ : float
+        Fitted (or fixed) nugget, m^2.
+    mean_ : callable
+        The fitted prior mean function.
+    L_ : ndarray of shape (n, n)
+        Lower Cholesky factor of ``K + diag(z_var + nugget)``.
+    alpha_ : ndarray of shape (n,)
+        ``(K + Sigma)^{-1} (z - m(X))`` (R&W Alg. 2.1 line 3).
+    log_marginal_likelihood_value_ : float
+        Eq 9 at the fitted hyperparameters, on all samples.
+    jitter_ : float
+        Diagonal jitter that the final factorization needed (0 when none).
+    """
+
+    def __init__(
+        self,
+        kernel: Kernel | None = None,
+        mean: Any = "constant",
+        nugget: float = 1e-2,
+        nugget_bounds: tuple[float, float] | str = (1e-6, 1e2),
+        optimize: bool = True,
+        n_restarts: int = 2,
+        max_fit_samples: int | None = 2000,
+        chunk_size: int | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.kernel = kernel
+        self.mean = mean
+        self.nugget = nugget
+        self.nugget_bounds = nugget_bounds
+        self.optimize = optimize
+        self.n_restarts = n_restarts
+        self.max_fit_samples = max_fit_samples
+        self.chunk_size = chunk_size
+        self.seed = seed
+
+    # -- settings ---------------------------------------------------------------------------
+    def _check_settings(self) -> None:
+        if not (np.isfinite(self.nugget) and self.nugget >= 0):
+            raise bad_input("nugget", self.nugget, "a variance >= 0 in m^2", "e.g. nugget=0.01")
+        if self.fit_nugget:
+            lo, hi = self.nugget_bounds
+            if not (0 < lo <= max(self.nugget, lo) <= hi):
+                raise bad_input(
+                    "nugget_bounds", self.nugget_bounds, "0 < low <= nugget <= high",
+                    'widen the bounds or pass nugget_bounds="fixed"',
+                )
+        elif self.nugget_bounds != "fixed":
+            raise bad_input("nugget_bounds", self.nugget_bounds, '(low, high) or "fixed"', "")
+        if int(self.n_restarts) < 0:
+            raise bad_input("n_restarts", self.n_restarts, ">= 0", "e.g. n_restarts=2")
+        if self.max_fit_samples is not None and int(self.max_fit_samples) < 3:
+            raise bad_input("max_fit_samples", self.max_fit_samples, ">= 3 or None", "")
+        if self.chunk_size is not None and int(self.chunk_size) < 1:
+            raise bad_input("chunk_size", self.chunk_size, ">= 1 or None", "")
+
+    @property
+    def fit_nugget(self) -> bool:
+        return not isinstance(self.nugget_bounds, str)
+
+    # -- hyperparameter vector: log([kernel params..., nugget]) -----------------------------
+    def _theta(self, kernel: Kernel, nugget: float) -> np.ndarray:
+        theta = kernel.theta
+        return np.append(theta, np.log(max(nugget, 1e-300))) if self.fit_nugget else theta
+
+    def _unpack(self, theta: np.ndarray, kernel: Kernel) -> tuple[Kernel, float]:
+        theta = np.asarray(theta, dtype=float)
+        k = kernel.n_params
+        if theta.shape != (k + self.fit_nugget,):
+            raise bad_input(
+                "theta", theta.shape, f"shape ({k + self.fit_nugget},): log of "
+                f"{kernel.param_names + (['nugget'] if self.fit_nugget else [])}", ""
+            )
+        nugget = float(np.exp(theta[k])) if self.fit_nugget else float(self.nugget)
+        return kernel.with_theta(theta[:k]), nugget
+
+    def _bounds(self, kernel: Kernel) -> np.ndarray:
+        b = kernel.bounds
+        return np.vstack([b, np.log(self.nugget_bounds)]) if self.fit_nugget else b
+
+    # -- fit ------------------------------------------------------------------------------
+    def fit(self, samples: ElevationSamples) -> TerrainGP:
+        """Fit hyperparameters (optional) and factor the kernel matrix once.
+
+        Parameters
+        ----------
+        samples : ElevationSamples
+            At least 3 samples; their CRS must match the prior mean's, if both have one.
+        """
+        self._check_settings()
+        if not isinstance(samples, ElevationSamples):
+            raise bad_input(
+                "samples", type(samples).__name__, "terrain.ElevationSamples",
+                "wrap arrays with ElevationSamples(xy, z, z_var)"
+            )
+        if samples.n < 3:
+            raise bad_input(
+                "samples", f"{samples.n} samples", "at least 3 samples to fit a surface",
+                "collect more data or widen the selection",
+            )
+        t0 = time.perf_counter()
+        rng = np.random.default_rng(self.seed)
+        mean = as_mean_function(self.mean)
+        check_same_crs(getattr(mean, "crs", None), samples.crs, "mean", "samples")
+        if hasattr(mean, "fit"):
+            mean = mean.fit(samples.xy, samples.z)
+        self.mean_ = mean
+        self.crs_ = samples.crs
+        self.samples_ = samples
+        self.X_offset_ = samples.xy.mean(axis=0)  # centred coordinates: exact cdist digits
+        X = samples.xy - self.X_offset_
+        resid = samples.z - np.asarray(mean(samples.xy), dtype=float)
+        self.X_train_, self.y_resid_, self.z_var_ = X, resid, np.asarray(samples.z_var)
+
+        kernel = self.kernel if self.kernel is not None else self._default_kernel(X, resid)
+        nugget = float(self.nugget)
+        self.fit_index_ = np.arange(samples.n)
+        self.optimizer_runs_ = []
+        if self.optimize:
+            if self.max_fit_samples is not None and samples.n > self.max_fit_samples:
+                self.fit_index_ = np.sort(
+                    rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
+                )
+            kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
+        self.kernel_, self.nugget_ = kernel, nugget
+
+        # R&W Alg. 2.1 lines 2-3: L = chol(K + Sigma), alpha = L^T \ (L \ y)
+        K = kernel(X)
+        K[np.diag_indices_from(K)] += self.z_var_ + nugget
+        self.L_, self.jitter_ = cholesky_jitter(K, what="TerrainGP kernel matrix")
+        del K
+        self.alpha_ = cho_solve((self.L_, True), resid, check_finite=False)
+        # Eq 9 / R&W Alg. 2.1 line 8
+        self.log_marginal_likelihood_value_ = float(
+            -0.5 * resid @ self.alpha_ - np.log(np.diag(self.L_)).sum() - 0.5 * X.shape[0] * _LOG_2PI
+        )
+        self.fit_seconds_ = time.perf_counter() - t0
+        return self
+
+    @staticmethod
+    def _default_kernel(X: np.ndarray, resid: np.ndarray) -> Kernel:
+        extent = float(np.ptp(X, axis=0).max()) or 1.0
+        variance = float(np.var(resid)) or 1.0
+        return SquaredExponential(variance=variance, lengthscale=max(extent / 10.0, 1.0))
+
+    def _optimize(self, kernel, nugget, idx, rng) -> tuple[Kernel, float]:
+        X, r, zv = self.X_train_[idx], self.y_resid_[idx], self.z_var_[idx]
+        bounds = self._bounds(kernel)
+
+        def objective(theta):
+            try:
+                lml, grad = self._lml(theta, kernel, X, r, zv, eval_gradient=True, strict=True)
+            except NumericalError:
+                return np.inf, np.zeros_like(theta)
+            return -lml, -grad
+
+        starts = [np.clip(self._theta(kernel, nugget), bounds[:, 0], bounds[:, 1])]
+        starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(int(self.n_restarts))]
+        best = None
+        for theta0 in starts:
+            res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds)
+            self.optimizer_runs_.append(
+                {"start": theta0.tolist(), "theta": res.x.tolist(), "lml": float(-res.fun),
+                 "success": bool(res.success), "nit": int(res.nit)}
+            )
+            if np.isfinite(res.fun) and (best is None or res.fun < best.fun):
+                best = res
+        if best is None:
+            raise NumericalError(
+                "every optimizer start failed to factor the kernel matrix. Fix: set a larger "
+                "nugget or narrower lengthscale_bounds."
+            )
+        return self._unpack(best.x, kernel)
+
+    # -- Eq 9 -------------------------------------------------------------------------------
+    def _lml(self, theta, kernel, X, r, z_var, eval_gradient, strict=False):
+        k, nugget = self._unpack(theta, kernel)
+        K = k(X)
+        K[np.diag_indices_from(K)] += z_var + nugget
+        if strict:  # inside the optimizer: no jitter, a failed factor is a bad point
+            from scipy.linalg import LinAlgError, cholesky
+
+            try:
+                L = cholesky(K, lower=True, check_finite=False)
+            except LinAlgError as exc:
+                raise NumericalError("not positive definite") from exc
+        else:
+            L, _ = cholesky_jitter(K, what="TerrainGP kernel matrix")
+        del K
+        alpha = cho_solve((L, True), r, check_finite=False)
+        # Eq 9: -1/2 y^T K^-1 y - 1/2 log|K| - n/2 log 2 pi  (R&W Alg. 2.1 line 8)
+        lml = -0.5 * r @ alpha - np.log(np.diag(L)).sum() - 0.5 * r.size * _LOG_2PI
+        if not eval_gradient:
+            return float(lml)
+        # R&W Eq 5.9: d lml / d theta_j = 1/2 tr((alpha alpha^T - K^-1) dK/dtheta_j)
+        Kinv = inverse_from_cholesky(L)
+        del L
+        grad = []
+        for dK in k.gradients(X):
+            grad.append(0.5 * (alpha @ dK @ alpha - np.einsum("ij,ij->", Kinv, dK)))
+        if self.fit_nugget:  # dK/dlog(nugget) = nugget * I
+            grad.append(0.5 * nugget * (alpha @ alpha - np.trace(Kinv)))
+        return float(lml), np.asarray(grad)
+
+    def log_marginal_likelihood(
+        self, theta: np.ndarray | None = None, eval_gradient: bool = False
+    ) -> float | tuple[float, np.ndarray]:
+        """Log marginal likelihood (Eq 9) on all fitted samples.
+
+        Parameters
+        ----------
+        theta : ndarray, optional
+            ``log([variance, lengthscale..., nugget])`` (nugget only when it is fitted);
+            default: the fitted values.
+        eval_gradient : bool
+            Also return the analytic gradient with respect to ``theta`` (R&W Eq 5.9).
+        """
+        self._check_fitted()
+        if theta is None:
+            theta = self._theta(self.kernel_, self.nugget_)
+            if not eval_gradient:
+                return self.log_marginal_likelihood_value_
+        return self._lml(
+            theta, self.kernel_, self.X_train_, self.y_resid_, self.z_var_, eval_gradient
+        )
+
+    # -- predict ----------------------------------------------------------------------------
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "L_"):
+            raise NotFittedError("This TerrainGP is not fitted yet. Call fit(samples) first.")
+
+    def _chunk_rows(self) -> int:
+        if self.chunk_size is not None:
+            return int(self.chunk_size)
+        return int(np.clip(2**24 // max(self.alpha_.size, 1), 256, 65536))
+
+    def predict(
+        self, xy: np.ndarray, return_std: bool = False, include_nugget: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Posterior mean (and 1-sigma) of the terrain at query points.
+
+        Parameters
+        ----------
+        xy : ndarray of shape (m, 2)
+            Easting, northing in metres, in the samples' CRS.
+        return_std : bool
+            Also return the posterior standard deviation of the terrain, metres.
+        include_nugget : bool
+            Add the nugget to the variance (predicting a new nugget-noisy observation rather
+            than the surface itself).
+
+        Returns
+        -------
+        mean : ndarray of shape (m,)
+        std : ndarray of shape (m,), only when ``return_std``
+        """
+        self._check_fitted()
+        xy = np.asarray(xy, dtype=float)
+        if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+            raise bad_input("xy", xy.shape, "finite query points of shape (m, 2)", "")
+        m = xy.shape[0]
+        mean = np.empty(m)
+        std = np.empty(m) if return_std else None
+        step = self._chunk_rows()
+        for start in range(0, m, step):
+            sl = slice(start, min(start + step, m))
+            Xq = xy[sl] - self.X_offset_
+            Ks = self.kernel_(Xq, self.X_train_)  # (chunk, n)
+            # R&W Alg. 2.1 line 4: f* = m(x*) + k*^T alpha
+            mean[sl] = np.asarray(self.mean_(xy[sl]), dtype=float) + Ks @ self.alpha_
+            if return_std:
+                # Alg. 2.1 lines 5-6: v = L \ k*, V[f*] = k(x*, x*) - v^T v (diagonal only)
+                V = solve_triangular(self.L_, Ks.T, lower=True, check_finite=False,
+                                     overwrite_b=True)
+                var = self.kernel_.diag(Xq) - np.einsum("ij,ij->j", V, V)
+                if include_nugget:
+                    var += self.nugget_
+                std[sl] = np.sqrt(np.maximum(var, 0.0))
+        return (mean, std) if return_std else mean
+
+    def predict_grid(self, grid: Grid, include_nugget: bool = False):
+        """Posterior mean and 1-sigma on every cell centre of ``grid``, in bounded memory.
+
+        Returns
+        -------
+        xarray.Dataset
+            ``elevation`` and ``elevation_std`` (metres) on dims ``(y, x)``, with CRS and
+            provenance (method, kernel, hyperparameters, seed) in ``attrs``.
+        """
+        import xarray as xr
+
+        self._check_fitted()
+        check_same_crs(self.crs_, grid.crs, "samples", "grid")
+        mean, std = self.predict(grid.xy(), return_std=True, include_nugget=include_nugget)
+        ds = xr.Dataset(
+            {
+                "elevation": (("y", "x"), mean.reshape(grid.shape), {"units": "m",
+                              "long_name": "posterior mean elevation"}),
+                "elevation_std": (("y", "x"), std.reshape(grid.shape), {"units": "m",
+                                  "long_name": "posterior 1-sigma of elevation"}),
+            },
+            coords=grid.coords(),
+            attrs={**grid.attrs(), **self.provenance()},
+        )
+        return ds
+
+    def provenance(self) -> dict[str, Any]:
+        """Flat, netCDF-safe description of how this map was made."""
+        self._check_fitted()
+        hyper = dict(zip(self.kernel_.param_names, np.exp(self.kernel_.theta).tolist(),
+                         strict=True))
+        hyper["nugget"] = self.nugget_
+        return {
+            "method": "exact GP (Rasmussen & Williams Alg. 2.1)",
+            "kernel": repr(self.kernel_),
+            "hyperparameters": json.dumps(hyper),
+            "mean_function": repr(self.mean_),
+            "n_samples": int(self.alpha_.size),
+            "n_fit_samples": int(self.fit_index_.size),
+            "n_merged_duplicates": int(self.samples_.n_merged),
+            "log_marginal_likelihood": self.log_marginal_likelihood_value_,
+            "jitter": self.jitter_,
+            "seed": int(self.seed),
+            "software": f"glacimap {_version()}",
+        }

@@ -1,0 +1,85 @@
+"""Cholesky factorization with honest jitter, shared by every GP in glacimap.
+
+A kernel matrix that is merely ill-conditioned (near-duplicate points, tiny noise) is
+retried with a growing diagonal jitter, and a :class:`JitterWarning` says how much was added;
+one that stays indefinite raises :class:`NumericalError`. Never a silent continue.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from scipy.linalg import LinAlgError, cholesky, lapack
+
+from .errors import JitterWarning, NumericalError
+
+__all__ = ["cholesky_jitter", "inverse_from_cholesky"]
+
+
+def cholesky_jitter(
+    K: np.ndarray, *, max_relative_jitter: float = 1e-4, what: str = "kernel matrix"
+) -> tuple[np.ndarray, float]:
+    """Lower Cholesky factor of ``K``, adding diagonal jitter only when it is needed.
+
+    Parameters
+    ----------
+    K : ndarray of shape (n, n)
+        Symmetric matrix; it is not modified.
+    max_relative_jitter : float
+        Largest jitter tried, relative to the mean of ``diag(K)``; jitter starts at 1e-10 of
+        it and grows tenfold per try.
+    what : str
+        Name used in the warning and error messages.
+
+    Returns
+    -------
+    L : ndarray of shape (n, n)
+        Lower-triangular factor with ``L @ L.T = K + jitter * I``.
+    jitter : float
+        The jitter added, in the units of ``K`` (0.0 when none was needed).
+    """
+    try:
+        return cholesky(K, lower=True, check_finite=False), 0.0
+    except LinAlgError:
+        pass
+    scale = float(np.mean(np.diag(K)))
+    if not np.isfinite(scale) or scale <= 0:
+        raise NumericalError(
+            f"{what}: the diagonal mean is {scale}, so it cannot be a covariance. Fix: check "
+            "the kernel variance and the noise variances."
+        )
+    jitter = 1e-10 * scale
+    while jitter <= max_relative_jitter * scale * (1 + 1e-12):
+        Kj = K.copy()
+        Kj[np.diag_indices_from(Kj)] += jitter
+        try:
+            L = cholesky(Kj, lower=True, check_finite=False)
+        except LinAlgError:
+            jitter *= 10.0
+            continue
+        warnings.warn(
+            f"{what} was not numerically positive definite; added jitter {jitter:.3g} "
+            f"(= {jitter / scale:.1e} of its mean diagonal) to factor it. Near-duplicate "
+            "locations with tiny noise usually cause this; a nugget or merged duplicates fix it.",
+            JitterWarning,
+            stacklevel=3,
+        )
+        return L, jitter
+    raise NumericalError(
+        f"{what} stayed indefinite after jitter up to {max_relative_jitter:.0e} of its mean "
+        "diagonal. Fix: add a nugget / measurement variance, or remove duplicate locations."
+    )
+
+
+def inverse_from_cholesky(L: np.ndarray) -> np.ndarray:
+    """``K^{-1}`` from the lower factor ``L`` (LAPACK dpotri), full symmetric (n, n).
+
+    Needed only for the trace term of the marginal-likelihood gradient (R&W Eq 5.9).
+    """
+    inv, info = lapack.dpotri(L, lower=1)
+    if info != 0:
+        raise NumericalError(f"dpotri failed with info={info} while inverting a Cholesky factor")
+    inv = np.tril(inv)
+    inv += np.tril(inv, -1).T
+    return inv
