@@ -18,7 +18,7 @@ from scipy.spatial.distance import cdist
 
 from .errors import bad_input
 
-__all__ = ["Kernel", "Matern", "SquaredExponential"]
+__all__ = ["Kernel", "Matern", "SquaredExponential", "SumKernel"]
 
 PaperReading = Literal["squared_lengthscale", "lengthscale"]
 
@@ -118,6 +118,9 @@ class Kernel:
     def diag(self, X: np.ndarray) -> np.ndarray:
         """Prior variance at each point, shape (n,): the kernel is stationary."""
         return np.full(np.asarray(X).shape[0], self.variance)
+
+    def __add__(self, other: Kernel) -> SumKernel:
+        return SumKernel((self, other))
 
     def gradients(self, X: np.ndarray) -> Iterator[np.ndarray]:
         """Yield ``dK(X, X) / dtheta_j`` for each log-hyperparameter, each of shape (n, n)."""
@@ -223,3 +226,72 @@ def _fmt(kernel: Kernel) -> str:
     return ", ".join(f"{v:.4g}" for v in kernel.lengths) if kernel.lengths.size > 1 else (
         f"{kernel.lengths[0]:.4g}"
     )
+
+
+@dataclass(frozen=True)
+class SumKernel:
+    """Sum of kernels, e.g. a long-scale trend plus short-scale rover-scale relief.
+
+    ``k = k_1 + k_2 + ...``; its ``theta`` is the concatenation of the parts' log-parameters
+    and parameter names are prefixed ``k1.``, ``k2.``... Build with ``+``:
+    ``Matern(16.0, 150.0, nu=2.5) + Matern(0.5, 15.0, nu=2.5)``.
+    """
+
+    parts: tuple[Kernel, ...]
+
+    def __post_init__(self) -> None:
+        flat: list[Kernel] = []
+        for p in self.parts:
+            if isinstance(p, SumKernel):
+                flat.extend(p.parts)
+            elif isinstance(p, Kernel):
+                flat.append(p)
+            else:
+                raise bad_input("kernel", type(p).__name__, "glacimap kernels", "")
+        object.__setattr__(self, "parts", tuple(flat))
+
+    def __add__(self, other: Kernel | SumKernel) -> SumKernel:
+        return SumKernel((self, other))
+
+    @property
+    def variance(self) -> float:
+        return float(sum(p.variance for p in self.parts))
+
+    @property
+    def n_params(self) -> int:
+        return sum(p.n_params for p in self.parts)
+
+    @property
+    def theta(self) -> np.ndarray:
+        return np.concatenate([p.theta for p in self.parts])
+
+    @property
+    def bounds(self) -> np.ndarray:
+        return np.vstack([p.bounds for p in self.parts])
+
+    @property
+    def param_names(self) -> list[str]:
+        return [f"k{i + 1}.{n}" for i, p in enumerate(self.parts) for n in p.param_names]
+
+    def with_theta(self, theta: np.ndarray) -> SumKernel:
+        out, start = [], 0
+        for p in self.parts:
+            out.append(p.with_theta(theta[start : start + p.n_params]))
+            start += p.n_params
+        return SumKernel(tuple(out))
+
+    def __call__(self, X: np.ndarray, Y: np.ndarray | None = None) -> np.ndarray:
+        K = self.parts[0](X, Y)
+        for p in self.parts[1:]:
+            K += p(X, Y)
+        return K
+
+    def diag(self, X: np.ndarray) -> np.ndarray:
+        return np.full(np.asarray(X).shape[0], self.variance)
+
+    def gradients(self, X: np.ndarray) -> Iterator[np.ndarray]:
+        for p in self.parts:
+            yield from p.gradients(X)
+
+    def __repr__(self) -> str:
+        return " + ".join(repr(p) for p in self.parts)

@@ -16,6 +16,10 @@ X = np.random.default_rng(0).uniform(0, 60, (25, 2))
         (SquaredExponential(3.0, (7.0, 4.0)), ConstantKernel(3.0) * RBF([7.0, 4.0])),
         (Matern(2.0, 9.0, nu=1.5), ConstantKernel(2.0) * SkMatern(9.0, nu=1.5)),
         (Matern(2.0, (9.0, 3.0), nu=2.5), ConstantKernel(2.0) * SkMatern([9.0, 3.0], nu=2.5)),
+        (
+            Matern(9.0, 40.0, nu=2.5) + SquaredExponential(0.5, 4.0),
+            ConstantKernel(9.0) * SkMatern(40.0, nu=2.5) + ConstantKernel(0.5) * RBF(4.0),
+        ),
     ],
 )
 def test_values_and_gradients_equal_sklearn(ours, theirs):

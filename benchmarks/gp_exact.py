@@ -1,0 +1,121 @@
+"""Exact GP: glacimap's TerrainGP against scikit-learn's GaussianProcessRegressor.
+
+Fit + predict (mean and std) for n = 1k, 2k, 5k noisy samples of a synthetic glacier onto a
+300 x 300 grid, with identical data and fixed hyperparameters; each case runs in its own
+process so its peak resident memory (ru_maxrss) is its own. Prints a table and writes JSON.
+
+    python benchmarks/gp_exact.py --out benchmarks/results/gp_exact.json   (or: make bench)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import platform
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+VARIANCE, LENGTHSCALE, NOISE = 20.0, 25.0, 0.2**2  # m^2, m, m^2 (fixed, shared by both)
+
+
+def _data(n: int, seed: int):
+    from terrain import Grid
+    from terrain.sampling import sample_dem
+    from terrain.synthetic import random_terrain
+
+    grid = Grid.from_bounds((0, 0, 600, 600), 2.0)  # 300 x 300 cells
+    truth = random_terrain(grid, relief=25.0, seed=seed, features=True)
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(2.0, 598.0, (n, 2))
+    z = sample_dem(truth, xy) + rng.normal(0.0, np.sqrt(NOISE), n)
+    return grid, xy, z - z.mean()
+
+
+def _case(impl: str, n: int, seed: int, queue) -> None:
+    grid, xy, z = _data(n, seed)
+    q = grid.xy()
+    base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    if impl == "glacimap":
+        from terrain import ElevationSamples
+        from terrain.gp import TerrainGP
+        from terrain.kernels import SquaredExponential
+
+        gp = TerrainGP(SquaredExponential(VARIANCE, LENGTHSCALE), mean=0.0, nugget=NOISE,
+                       nugget_bounds="fixed", optimize=False).fit(ElevationSamples(xy, z))
+        t1 = time.perf_counter()
+        mean, std = gp.predict(q, return_std=True)
+    else:
+        from sklearn.gaussian_process import GaussianProcessRegressor
+        from sklearn.gaussian_process.kernels import RBF, ConstantKernel
+
+        gp = GaussianProcessRegressor(ConstantKernel(VARIANCE) * RBF(LENGTHSCALE), alpha=NOISE,
+                                      optimizer=None).fit(xy, z)
+        t1 = time.perf_counter()
+        mean, std = gp.predict(q, return_std=True)
+    t2 = time.perf_counter()
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    queue.put({"impl": impl, "n": n, "fit_s": t1 - t0, "predict_s": t2 - t1, "total_s": t2 - t0,
+               "peak_rss_mb": peak / 1024, "base_rss_mb": base_rss / 1024,
+               "mean": mean.astype(np.float32), "std": std.astype(np.float32)})
+
+
+def run_case(impl: str, n: int, seed: int) -> dict:
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=_case, args=(impl, n, seed, queue))
+    proc.start()
+    out = queue.get()
+    proc.join()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 2000, 5000])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/gp_exact.json"))
+    args = ap.parse_args(argv)
+    rows = []
+    head = (f"{'n':>6} {'impl':>9} {'fit s':>7} {'pred s':>8} {'total s':>8} {'peak MB':>8} "
+            f"{'time ratio':>10} {'mem ratio':>9} {'max|dmean|':>10} {'max|dstd|':>9}")
+    print("Exact GP onto a 300 x 300 grid (mean + std), fixed hyperparameters")
+    print(head)
+    for n in args.sizes:
+        ours = run_case("glacimap", n, args.seed)
+        ref = run_case("sklearn", n, args.seed)
+        dmean = float(np.max(np.abs(ours.pop("mean") - ref.pop("mean"))))
+        dstd = float(np.max(np.abs(ours.pop("std") - ref.pop("std"))))
+        ratio_t = ours["total_s"] / ref["total_s"]
+        ratio_m = ours["peak_rss_mb"] / ref["peak_rss_mb"]
+        for r in (ours, ref):
+            extra = (f"{ratio_t:>10.2f} {ratio_m:>9.2f} {dmean:>10.1e} {dstd:>9.1e}"
+                     if r is ours else "")
+            print(f"{n:>6} {r['impl']:>9} {r['fit_s']:>7.2f} {r['predict_s']:>8.2f} "
+                  f"{r['total_s']:>8.2f} {r['peak_rss_mb']:>8.0f} {extra}", flush=True)
+        rows.append({"n": n, "glacimap": ours, "sklearn": ref, "time_ratio": ratio_t,
+                     "peak_memory_ratio": ratio_m, "max_abs_mean_diff_m": dmean,
+                     "max_abs_std_diff_m": dstd})
+    result = {
+        "benchmark": "gp_exact", "grid": [300, 300], "seed": args.seed,
+        "hyperparameters": {"variance": VARIANCE, "lengthscale": LENGTHSCALE, "noise": NOISE},
+        "python": sys.version.split()[0], "machine": platform.machine(),
+        "cpu_count": mp.cpu_count(), "rows": rows,
+        "notes": "time ratio = glacimap / scikit-learn (< 1: glacimap faster); peak RSS per "
+                 "process includes the interpreter and libraries (base_rss_mb).",
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,286 @@
+"""Satellite priors and GP mean functions (paper, Section II-C).
+
+The paper's GP uses either a constant mean ("the mean of all the observation values") or a
+mean interpolated from coarse satellite data: "the raw DEM contained only 64 values", turned
+into "a triangular mesh terrain model capable of interpolating the elevation at any point"
+(Section II-E). :func:`coarse_dem` makes such a DEM from a synthetic truth (block averages,
+as a satellite "average[s] the terrain elevation over a large area"); :class:`TriangulatedMean`
+interpolates it linearly on the Delaunay triangulation and, unlike a bare mesh, is defined on
+all of R^2 (the GP's mean must be evaluable at every query point).
+
+A mean function is any callable ``xy (n, 2) -> (n,)`` in metres; the GP calls
+``mean.fit(xy, z)`` first when the object has a ``fit`` method.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from numbers import Real
+from typing import Any
+
+import numpy as np
+import xarray as xr
+from scipy.interpolate import LinearNDInterpolator
+from scipy.spatial import Delaunay
+
+from .errors import NotFittedError, bad_input
+from .grid import Grid
+
+__all__ = ["ConstantMean", "TriangulatedMean", "as_mean_function", "coarse_dem"]
+
+MeanFunction = Callable[[np.ndarray], np.ndarray]
+_CHUNK = 65536  # query points per chunk when projecting onto the hull edges
+
+
+def _check_xy(xy: Any) -> np.ndarray:
+    xy = np.asarray(xy, dtype=float)
+    if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        shape = getattr(xy, "shape", None)
+        raise bad_input("xy", shape, "finite easting/northing, shape (n, 2)", "stack x and y")
+    return xy
+
+
+def coarse_dem(
+    truth: xr.DataArray,
+    cells: tuple[int, int] = (8, 8),
+    noise: float = 0.0,
+    seed: int | np.random.Generator | None = None,
+) -> xr.DataArray:
+    """Block-average ``truth`` into ``cells`` coarse cells: a satellite-like DEM.
+
+    With the default 8 x 8 cells this is the paper's "raw DEM [that] contained only 64
+    values" (Section II-E).
+
+    Parameters
+    ----------
+    truth : xarray.DataArray
+        Fine elevation raster (dims y, x; metres) made by :meth:`Grid.data_array`.
+    cells : tuple of int
+        ``(ny, nx)`` coarse cells over the same bounds (``Grid.coarsen``).
+    noise : float
+        Standard deviation (m) of Gaussian noise added to each coarse value.
+    seed : int, Generator or None
+        Seed of the noise (``np.random.default_rng``).
+
+    Returns
+    -------
+    xarray.DataArray
+        Shape ``cells``; each value is the mean of the finite fine cells whose *centre* lies
+        in that coarse cell (cells are half-open: a centre exactly on an edge goes to the
+        cell east / south of it), so shapes need not divide evenly.
+    """
+    fine = Grid.from_dataarray(truth)
+    coarse = fine.coarsen(cells)
+    if not (np.isfinite(noise) and noise >= 0):
+        raise bad_input("noise", noise, "a standard deviation >= 0 in metres", "e.g. 0.5")
+    (fy, fx), (cy, cx) = fine.shape, coarse.shape
+    # Exact integer arithmetic: centre (i + 1/2) fine cells -> floor((2i + 1) c / 2f).
+    col = (2 * np.arange(fx) + 1) * cx // (2 * fx)
+    row = (2 * np.arange(fy) + 1) * cy // (2 * fy)
+    idx = (row[:, None] * cx + col[None, :]).ravel()
+    vals = np.asarray(truth.values, dtype=float).ravel()
+    ok = np.isfinite(vals)
+    count = np.bincount(idx[ok], minlength=cy * cx)
+    total = np.bincount(idx[ok], weights=vals[ok], minlength=cy * cx)
+    if (count == 0).any():
+        r, c = divmod(int(np.flatnonzero(count == 0)[0]), cx)
+        where = f"coarse cell (row {r}, col {c}) centred at ({coarse.x[c]:.1f}, {coarse.y[r]:.1f})"
+        fix = "use fewer cells, or fill the NaN area of the truth"
+        raise bad_input("truth", where, "at least one finite fine cell per coarse cell", fix)
+    values = (total / count).reshape(cy, cx)
+    if noise > 0:
+        values = values + np.random.default_rng(seed).normal(0.0, noise, values.shape)
+    seed_attr = seed if isinstance(seed, int | np.integer) else str(seed)
+    return coarse.data_array(
+        values,
+        truth.name or "elevation",
+        units=truth.attrs.get("units", "m"),
+        cells=(cy, cx),
+        noise=float(noise),
+        seed=seed_attr,
+        source="block average",
+    )
+
+
+@dataclass(frozen=True)
+class ConstantMean:
+    """A constant mean function, metres.
+
+    Parameters
+    ----------
+    value : float, optional
+        The constant; ``None`` means "the mean of the observations" (the paper's default,
+        Section II-C), set by :meth:`fit`.
+    """
+
+    value: float | None = None
+    value_: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("value", "value_"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, Real) and np.isfinite(v)):
+                raise bad_input(f"mean.{name}", v, "a finite number of metres or None", "e.g. 0")
+        if self.value is not None and self.value_ is None:
+            object.__setattr__(self, "value_", float(self.value))
+
+    def fit(self, xy: np.ndarray, z: np.ndarray) -> ConstantMean:
+        """A fitted copy: ``value_`` = ``value`` if given, else the mean of ``z`` (n,)."""
+        z = np.asarray(z, dtype=float)
+        if z.ndim != 1 or z.size == 0 or not np.all(np.isfinite(z)):
+            raise bad_input(
+                "z",
+                getattr(z, "shape", z),
+                "a non-empty finite (n,) array",
+                "drop NaN samples first",
+            )
+        if len(_check_xy(xy)) != z.size:
+            raise bad_input("xy", len(xy), f"{z.size} points, one per z", "align xy and z")
+        return replace(self, value_=float(self.value if self.value is not None else z.mean()))
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        """The constant at each of ``xy`` (n, 2) -> (n,)."""
+        if self.value_ is None:
+            raise NotFittedError(
+                "ConstantMean() (mean of the observations) was called before fit. Fix: call "
+                "mean.fit(xy, z) first, or give a value: ConstantMean(100.0)."
+            )
+        return np.full(len(_check_xy(xy)), self.value_)
+
+
+class TriangulatedMean:
+    """Linear interpolation of a coarse DEM on the Delaunay triangulation of its cell centres.
+
+    Inside the convex hull of the centres this is the paper's triangular mesh of satellite
+    values (Section II-E). Outside, it takes the value at the nearest point of the hull
+    boundary (linear along that boundary edge), so it is defined, finite and bounded on all of
+    R^2 and continuous across the hull.
+
+    Parameters
+    ----------
+    coarse : xarray.DataArray
+        Coarse DEM (dims y, x; metres; e.g. from :func:`coarse_dem`); all values finite.
+
+    Attributes
+    ----------
+    crs : pyproj.CRS
+        CRS of the coarse grid; query points must be in it.
+    points : ndarray, shape (m, 2)
+        Cell centres (easting, northing), metres.
+    values : ndarray, shape (m,)
+        Elevations at the centres, metres.
+    """
+
+    def __init__(self, coarse: xr.DataArray) -> None:
+        if not isinstance(coarse, xr.DataArray):
+            raise bad_input(
+                "coarse",
+                type(coarse).__name__,
+                "an xarray.DataArray DEM",
+                "make one with coarse_dem(truth) or Grid.data_array",
+            )
+        self.grid = Grid.from_dataarray(coarse)
+        self.crs = self.grid.crs
+        self.points = self.grid.xy()
+        self.values = np.asarray(coarse.values, dtype=float).ravel()
+        if self.values.size != len(self.points) or not np.all(np.isfinite(self.values)):
+            raise bad_input(
+                "coarse",
+                "NaN or misshapen values",
+                "finite values on its grid",
+                "fill or drop the NaN cells first",
+            )
+        self._interp = self._edges = None
+        if min(self.grid.shape) > 1:  # a 2-D lattice: triangulate
+            tri = Delaunay(self.points)
+            self._interp = LinearNDInterpolator(tri, self.values)
+            # Boundary edges of the triangulation: the edge opposite vertex j of simplex s
+            # is on the hull when s has no neighbour across it.
+            s, j = np.nonzero(tri.neighbors == -1)
+            ends = np.stack([tri.simplices[s, (j + 1) % 3], tri.simplices[s, (j + 2) % 3]], 1)
+            self._edges = ends
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        """Mean elevation (m) at ``xy`` (n, 2) -> (n,); never NaN."""
+        xy = _check_xy(xy)
+        if self._interp is None:  # one row or column of cells: interpolate along it
+            axis = 0 if self.grid.nx > 1 else 1
+            order = np.argsort(self.points[:, axis])
+            return np.interp(xy[:, axis], self.points[order, axis], self.values[order])
+        out = self._interp(xy)
+        outside = np.flatnonzero(np.isnan(out))
+        for start in range(0, outside.size, _CHUNK):
+            chunk = outside[start : start + _CHUNK]
+            out[chunk] = self._nearest_on_hull(xy[chunk])
+        return out
+
+    def _nearest_on_hull(self, xy: np.ndarray) -> np.ndarray:
+        """Value at the nearest point of the hull boundary, linear along each edge."""
+        i, j = self._edges[:, 0], self._edges[:, 1]
+        a, ab = self.points[i], self.points[j] - self.points[i]  # (e, 2)
+        rel = xy[:, None, :] - a[None]  # (n, e, 2)
+        t = np.clip((rel * ab).sum(-1) / (ab * ab).sum(-1), 0.0, 1.0)  # (n, e)
+        d2 = ((rel - t[..., None] * ab) ** 2).sum(-1)
+        best = np.argmin(d2, axis=1)
+        tb = t[np.arange(len(xy)), best]
+        return self.values[i[best]] + tb * (self.values[j[best]] - self.values[i[best]])
+
+    def __repr__(self) -> str:
+        w, s, e, n = self.grid.bounds
+        return (
+            f"TriangulatedMean(cells={self.grid.shape}, bounds=({w:.1f}, {s:.1f}, {e:.1f}, "
+            f"{n:.1f}), crs={self.crs.to_string()}, elevation {self.values.min():.2f}.."
+            f"{self.values.max():.2f} m)"
+        )
+
+
+class _CheckedMean:
+    """A user callable whose output is validated: shape (n,), finite."""
+
+    def __init__(self, fn: MeanFunction) -> None:
+        self.fn = fn
+        self.crs = getattr(fn, "crs", None)
+
+    def fit(self, xy: np.ndarray, z: np.ndarray) -> _CheckedMean:
+        """``fn.fit(xy, z)`` wrapped again if ``fn`` has one; else this object."""
+        return _CheckedMean(self.fn.fit(xy, z)) if hasattr(self.fn, "fit") else self
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        xy = _check_xy(xy)
+        fix = "make the mean function return one finite elevation (m) per point, shape (n,)"
+        try:
+            out = np.asarray(self.fn(xy), dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise bad_input("mean", self.fn, "a callable xy (n, 2) -> (n,) metres", fix) from exc
+        if out.shape != (len(xy),):
+            raise bad_input("mean", f"output of shape {out.shape}", f"shape ({len(xy)},)", fix)
+        if not np.all(np.isfinite(out)):
+            bad = int((~np.isfinite(out)).sum())
+            raise bad_input("mean", f"{bad} non-finite values", "finite elevations", fix)
+        return out
+
+    def __repr__(self) -> str:
+        return f"_CheckedMean({self.fn!r})"
+
+
+def as_mean_function(mean: Any) -> MeanFunction:
+    """Normalise what a user passes as a GP mean.
+
+    ``None`` or ``"constant"`` -> :class:`ConstantMean` (mean of the observations); a number
+    -> ``ConstantMean(value)``; an ``xarray.DataArray`` (coarse DEM) ->
+    :class:`TriangulatedMean`; our own mean objects are returned as they are; any other
+    callable ``xy (n, 2) -> (n,)`` is wrapped so its output is checked (shape, finite).
+    """
+    if mean is None or (isinstance(mean, str) and mean.lower() == "constant"):
+        return ConstantMean()
+    if isinstance(mean, ConstantMean | TriangulatedMean | _CheckedMean):
+        return mean
+    if isinstance(mean, Real) and not isinstance(mean, bool):
+        return ConstantMean(float(mean))
+    if isinstance(mean, xr.DataArray):
+        return TriangulatedMean(mean)
+    if callable(mean) and not isinstance(mean, str | type):
+        return _CheckedMean(mean)
+    expected = 'None, "constant", a number, a coarse DEM DataArray or a callable xy -> z'
+    raise bad_input("mean", mean, expected, "pass e.g. mean=coarse_dem(truth)")

@@ -1,0 +1,51 @@
+"""``glacimap`` command line: one module per command, all over the public library API."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+from rich.console import Console
+
+from terrain.errors import GlacimapError
+
+from . import reconstruct
+
+app = typer.Typer(
+    name="glacimap",
+    help="Certified, probabilistic elevation maps of glaciers from a rover survey.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.callback()
+def _root() -> None:
+    """Certified, probabilistic elevation maps of glaciers from a rover survey."""
+
+
+app.command("reconstruct")(reconstruct.reconstruct)
+
+err_console = Console(stderr=True)
+
+
+def main() -> None:
+    """Entry point: library errors become one clear line and exit code 2 (bad input)."""
+    try:
+        app(standalone_mode=False)
+    except GlacimapError as exc:
+        err_console.print(f"[bold red]error:[/] {exc}")
+        sys.exit(2)
+    except (typer.Abort, KeyboardInterrupt):
+        err_console.print("[yellow]aborted[/]")
+        sys.exit(130)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except Exception as exc:  # click usage errors carry their own exit code
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        raise
