@@ -46,23 +46,39 @@ def _case(impl: str, n: int, seed: int, queue) -> None:
         from terrain.gp import TerrainGP
         from terrain.kernels import SquaredExponential
 
-        gp = TerrainGP(SquaredExponential(VARIANCE, LENGTHSCALE), mean=0.0, nugget=NOISE,
-                       nugget_bounds="fixed", optimize=False).fit(ElevationSamples(xy, z))
+        gp = TerrainGP(
+            SquaredExponential(VARIANCE, LENGTHSCALE),
+            mean=0.0,
+            nugget=NOISE,
+            nugget_bounds="fixed",
+            optimize=False,
+        ).fit(ElevationSamples(xy, z))
         t1 = time.perf_counter()
         mean, std = gp.predict(q, return_std=True)
     else:
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import RBF, ConstantKernel
 
-        gp = GaussianProcessRegressor(ConstantKernel(VARIANCE) * RBF(LENGTHSCALE), alpha=NOISE,
-                                      optimizer=None).fit(xy, z)
+        gp = GaussianProcessRegressor(
+            ConstantKernel(VARIANCE) * RBF(LENGTHSCALE), alpha=NOISE, optimizer=None
+        ).fit(xy, z)
         t1 = time.perf_counter()
         mean, std = gp.predict(q, return_std=True)
     t2 = time.perf_counter()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    queue.put({"impl": impl, "n": n, "fit_s": t1 - t0, "predict_s": t2 - t1, "total_s": t2 - t0,
-               "peak_rss_mb": peak / 1024, "base_rss_mb": base_rss / 1024,
-               "mean": mean.astype(np.float32), "std": std.astype(np.float32)})
+    queue.put(
+        {
+            "impl": impl,
+            "n": n,
+            "fit_s": t1 - t0,
+            "predict_s": t2 - t1,
+            "total_s": t2 - t0,
+            "peak_rss_mb": peak / 1024,
+            "base_rss_mb": base_rss / 1024,
+            "mean": mean.astype(np.float32),
+            "std": std.astype(np.float32),
+        }
+    )
 
 
 def run_case(impl: str, n: int, seed: int) -> dict:
@@ -82,8 +98,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/gp_exact.json"))
     args = ap.parse_args(argv)
     rows = []
-    head = (f"{'n':>6} {'impl':>9} {'fit s':>7} {'pred s':>8} {'total s':>8} {'peak MB':>8} "
-            f"{'time ratio':>10} {'mem ratio':>9} {'max|dmean|':>10} {'max|dstd|':>9}")
+    head = (
+        f"{'n':>6} {'impl':>9} {'fit s':>7} {'pred s':>8} {'total s':>8} {'peak MB':>8} "
+        f"{'time ratio':>10} {'mem ratio':>9} {'max|dmean|':>10} {'max|dstd|':>9}"
+    )
     print("Exact GP onto a 300 x 300 grid (mean + std), fixed hyperparameters")
     print(head)
     for n in args.sizes:
@@ -94,20 +112,36 @@ def main(argv: list[str] | None = None) -> int:
         ratio_t = ours["total_s"] / ref["total_s"]
         ratio_m = ours["peak_rss_mb"] / ref["peak_rss_mb"]
         for r in (ours, ref):
-            extra = (f"{ratio_t:>10.2f} {ratio_m:>9.2f} {dmean:>10.1e} {dstd:>9.1e}"
-                     if r is ours else "")
-            print(f"{n:>6} {r['impl']:>9} {r['fit_s']:>7.2f} {r['predict_s']:>8.2f} "
-                  f"{r['total_s']:>8.2f} {r['peak_rss_mb']:>8.0f} {extra}", flush=True)
-        rows.append({"n": n, "glacimap": ours, "sklearn": ref, "time_ratio": ratio_t,
-                     "peak_memory_ratio": ratio_m, "max_abs_mean_diff_m": dmean,
-                     "max_abs_std_diff_m": dstd})
+            extra = (
+                f"{ratio_t:>10.2f} {ratio_m:>9.2f} {dmean:>10.1e} {dstd:>9.1e}" if r is ours else ""
+            )
+            print(
+                f"{n:>6} {r['impl']:>9} {r['fit_s']:>7.2f} {r['predict_s']:>8.2f} "
+                f"{r['total_s']:>8.2f} {r['peak_rss_mb']:>8.0f} {extra}",
+                flush=True,
+            )
+        rows.append(
+            {
+                "n": n,
+                "glacimap": ours,
+                "sklearn": ref,
+                "time_ratio": ratio_t,
+                "peak_memory_ratio": ratio_m,
+                "max_abs_mean_diff_m": dmean,
+                "max_abs_std_diff_m": dstd,
+            }
+        )
     result = {
-        "benchmark": "gp_exact", "grid": [300, 300], "seed": args.seed,
+        "benchmark": "gp_exact",
+        "grid": [300, 300],
+        "seed": args.seed,
         "hyperparameters": {"variance": VARIANCE, "lengthscale": LENGTHSCALE, "noise": NOISE},
-        "python": sys.version.split()[0], "machine": platform.machine(),
-        "cpu_count": mp.cpu_count(), "rows": rows,
+        "python": sys.version.split()[0],
+        "machine": platform.machine(),
+        "cpu_count": mp.cpu_count(),
+        "rows": rows,
         "notes": "time ratio = glacimap / scikit-learn (< 1: glacimap faster); peak RSS per "
-                 "process includes the interpreter and libraries (base_rss_mb).",
+        "process includes the interpreter and libraries (base_rss_mb).",
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".json.tmp")

@@ -1,9 +1,10 @@
 """The terrain layer: grids and CRS, synthetic glaciers, satellite priors, GP reconstruction.
 
 ``terrain`` is the base of glacimap (DESIGN.md §2): it imports nothing from ``survey``,
-``factorgraph`` or ``toolkit``.
+``factorgraph`` or ``toolkit``. The names below are the public contract.
 """
 
+from .baselines import delaunay_linear
 from .errors import (
     CRSMismatchError,
     DuplicateLocationError,
@@ -13,18 +14,60 @@ from .errors import (
     NotFittedError,
     NumericalError,
 )
+from .gp import TerrainGP
 from .grid import DEFAULT_CRS, Grid
+from .kernels import Matern, SquaredExponential, SumKernel
+from .metrics import (
+    covered_fraction,
+    evaluate,
+    interval_coverage,
+    mae,
+    max_abs_error,
+    nlpd,
+    rmse,
+    standardized_error_stats,
+)
+from .prior import ConstantMean, TriangulatedMean, as_mean_function, coarse_dem
 from .samples import ElevationSamples
+from .sampling import LandmarkNoise, sample_along_path, sample_dem
+from .synthetic import TerrainFeatures, default_site, random_terrain, terrain_function
+from .tuning import PaperTuning, tune_paper_grid
 
 __all__ = [
     "DEFAULT_CRS",
     "CRSMismatchError",
+    "ConstantMean",
     "DuplicateLocationError",
-    "GlacimapError",
     "ElevationSamples",
+    "GlacimapError",
     "Grid",
     "InputError",
     "JitterWarning",
+    "LandmarkNoise",
+    "Matern",
     "NotFittedError",
     "NumericalError",
+    "PaperTuning",
+    "SquaredExponential",
+    "SumKernel",
+    "TerrainFeatures",
+    "TerrainGP",
+    "TriangulatedMean",
+    "as_mean_function",
+    "coarse_dem",
+    "covered_fraction",
+    "default_site",
+    "delaunay_linear",
+    "evaluate",
+    "interval_coverage",
+    "mae",
+    "max_abs_error",
+    "nlpd",
+    "random_terrain",
+    "rmse",
+    "sample_along_path",
+    "sample_dem",
+    "standardized_error_stats",
+    "terrain_function",
+    "tune_paper_grid",
 ]

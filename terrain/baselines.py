@@ -43,7 +43,9 @@ def delaunay_linear(samples: ElevationSamples, grid: Grid):
         interp = LinearNDInterpolator(samples.xy - offset, samples.z)
     except QhullError as exc:
         raise bad_input(
-            "samples.xy", f"{samples.n} points", "points that span an area (not collinear)",
+            "samples.xy",
+            f"{samples.n} points",
+            "points that span an area (not collinear)",
             "collect samples off a single line",
         ) from exc
     z = interp(grid.xy() - offset).reshape(grid.shape)

@@ -122,7 +122,9 @@ class TerrainGP:
             lo, hi = self.nugget_bounds
             if not (0 < lo <= max(self.nugget, lo) <= hi):
                 raise bad_input(
-                    "nugget_bounds", self.nugget_bounds, "0 < low <= nugget <= high",
+                    "nugget_bounds",
+                    self.nugget_bounds,
+                    "0 < low <= nugget <= high",
                     'widen the bounds or pass nugget_bounds="fixed"',
                 )
         elif self.nugget_bounds != "fixed":
@@ -148,8 +150,11 @@ class TerrainGP:
         k = kernel.n_params
         if theta.shape != (k + self.fit_nugget,):
             raise bad_input(
-                "theta", theta.shape, f"shape ({k + self.fit_nugget},): log of "
-                f"{kernel.param_names + (['nugget'] if self.fit_nugget else [])}", ""
+                "theta",
+                theta.shape,
+                f"shape ({k + self.fit_nugget},): log of "
+                f"{kernel.param_names + (['nugget'] if self.fit_nugget else [])}",
+                "",
             )
         nugget = float(np.exp(theta[k])) if self.fit_nugget else float(self.nugget)
         return kernel.with_theta(theta[:k]), nugget
@@ -170,12 +175,16 @@ class TerrainGP:
         self._check_settings()
         if not isinstance(samples, ElevationSamples):
             raise bad_input(
-                "samples", type(samples).__name__, "terrain.ElevationSamples",
-                "wrap arrays with ElevationSamples(xy, z, z_var)"
+                "samples",
+                type(samples).__name__,
+                "terrain.ElevationSamples",
+                "wrap arrays with ElevationSamples(xy, z, z_var)",
             )
         if samples.n < 3:
             raise bad_input(
-                "samples", f"{samples.n} samples", "at least 3 samples to fit a surface",
+                "samples",
+                f"{samples.n} samples",
+                "at least 3 samples to fit a surface",
                 "collect more data or widen the selection",
             )
         t0 = time.perf_counter()
@@ -212,7 +221,9 @@ class TerrainGP:
         self.alpha_ = cho_solve((self.L_, True), resid, check_finite=False)
         # Eq 9 / R&W Alg. 2.1 line 8
         self.log_marginal_likelihood_value_ = float(
-            -0.5 * resid @ self.alpha_ - np.log(np.diag(self.L_)).sum() - 0.5 * X.shape[0] * _LOG_2PI
+            -0.5 * resid @ self.alpha_
+            - np.log(np.diag(self.L_)).sum()
+            - 0.5 * X.shape[0] * _LOG_2PI
         )
         self.fit_seconds_ = time.perf_counter() - t0
         return self
@@ -240,8 +251,14 @@ class TerrainGP:
         for theta0 in starts:
             res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds)
             self.optimizer_runs_.append(
-                {"start": theta0.tolist(), "theta": res.x.tolist(), "lml": float(-res.fun),
-                 "success": bool(res.success), "nit": int(res.nit)}
+                {
+                    "start": theta0.tolist(),
+                    "theta": res.x.tolist(),
+                    "lml": float(-res.fun),
+                    "success": bool(res.success),
+                    "nit": int(res.nit),
+                    "nfev": int(res.nfev),
+                }
             )
             if np.isfinite(res.fun) and (best is None or res.fun < best.fun):
                 best = res
@@ -350,8 +367,9 @@ class TerrainGP:
             mean[sl] = np.asarray(self.mean_(xy[sl]), dtype=float) + Ks @ self.alpha_
             if return_std:
                 # Alg. 2.1 lines 5-6: v = L \ k*, V[f*] = k(x*, x*) - v^T v (diagonal only)
-                V = solve_triangular(self.L_, Ks.T, lower=True, check_finite=False,
-                                     overwrite_b=True)
+                V = solve_triangular(
+                    self.L_, Ks.T, lower=True, check_finite=False, overwrite_b=True
+                )
                 var = self.kernel_.diag(Xq) - np.einsum("ij,ij->j", V, V)
                 if include_nugget:
                     var += self.nugget_
@@ -374,10 +392,16 @@ class TerrainGP:
         mean, std = self.predict(grid.xy(), return_std=True, include_nugget=include_nugget)
         ds = xr.Dataset(
             {
-                "elevation": (("y", "x"), mean.reshape(grid.shape), {"units": "m",
-                              "long_name": "posterior mean elevation"}),
-                "elevation_std": (("y", "x"), std.reshape(grid.shape), {"units": "m",
-                                  "long_name": "posterior 1-sigma of elevation"}),
+                "elevation": (
+                    ("y", "x"),
+                    mean.reshape(grid.shape),
+                    {"units": "m", "long_name": "posterior mean elevation"},
+                ),
+                "elevation_std": (
+                    ("y", "x"),
+                    std.reshape(grid.shape),
+                    {"units": "m", "long_name": "posterior 1-sigma of elevation"},
+                ),
             },
             coords=grid.coords(),
             attrs={**grid.attrs(), **self.provenance()},
@@ -387,8 +411,9 @@ class TerrainGP:
     def provenance(self) -> dict[str, Any]:
         """Flat, netCDF-safe description of how this map was made."""
         self._check_fitted()
-        hyper = dict(zip(self.kernel_.param_names, np.exp(self.kernel_.theta).tolist(),
-                         strict=True))
+        hyper = dict(
+            zip(self.kernel_.param_names, np.exp(self.kernel_.theta).tolist(), strict=True)
+        )
         hyper["nugget"] = self.nugget_
         return {
             "method": "exact GP (Rasmussen & Williams Alg. 2.1)",

@@ -81,19 +81,25 @@ class Grid:
         res = tuple(float(r) for r in np.broadcast_to(np.asarray(self.resolution), (2,)))
         if not all(np.isfinite(res)) or min(res) <= 0:
             raise bad_input(
-                "grid.resolution", self.resolution, "two positive finite cell sizes in metres",
-                "pass e.g. resolution=2.0"
+                "grid.resolution",
+                self.resolution,
+                "two positive finite cell sizes in metres",
+                "pass e.g. resolution=2.0",
             )
         shape = tuple(int(s) for s in self.shape)
         if len(shape) != 2 or min(shape) < 1:
             raise bad_input(
-                "grid.shape", self.shape, "(ny, nx) with at least one row and one column",
+                "grid.shape",
+                self.shape,
+                "(ny, nx) with at least one row and one column",
                 "choose bounds larger than one cell or a finer resolution",
             )
         if not (np.isfinite(self.west) and np.isfinite(self.north)):
             raise bad_input(
-                "grid origin", (self.west, self.north), "finite easting/northing",
-                "check the bounds"
+                "grid origin",
+                (self.west, self.north),
+                "finite easting/northing",
+                "check the bounds",
             )
         object.__setattr__(self, "resolution", res)
         object.__setattr__(self, "shape", shape)
@@ -117,13 +123,17 @@ class Grid:
             west, south, east, north = (float(b) for b in bounds)
         except (TypeError, ValueError) as exc:
             raise bad_input(
-                "bounds", bounds, "(west, south, east, north) as four numbers",
-                "pass four numbers in metres, as rasterio does"
+                "bounds",
+                bounds,
+                "(west, south, east, north) as four numbers",
+                "pass four numbers in metres, as rasterio does",
             ) from exc
         if not np.all(np.isfinite([west, south, east, north])) or east <= west or north <= south:
             raise bad_input(
-                "bounds", bounds, "finite (west, south, east, north) with east > west and "
-                "north > south", "check the order: rasterio's (west, south, east, north)"
+                "bounds",
+                bounds,
+                "finite (west, south, east, north) with east > west and north > south",
+                "check the order: rasterio's (west, south, east, north)",
             )
         dx, dy = (float(r) for r in np.broadcast_to(np.asarray(resolution, float), (2,)))
         if not (dx > 0 and dy > 0):
@@ -132,7 +142,8 @@ class Grid:
         ny = int(round((north - south) / dy))
         if nx < 1 or ny < 1:
             raise bad_input(
-                "resolution", resolution,
+                "resolution",
+                resolution,
                 f"a cell size no larger than the extent ({east - west} x {north - south} m)",
                 "choose a finer resolution",
             )
@@ -202,11 +213,16 @@ class Grid:
         values = np.asarray(values)
         if values.shape != self.shape:
             raise bad_input(
-                f"{name} values", values.shape, f"shape {self.shape} (ny, nx)",
-                "reshape to the grid (row-major, north first)"
+                f"{name} values",
+                values.shape,
+                f"shape {self.shape} (ny, nx)",
+                "reshape to the grid (row-major, north first)",
             )
         return xr.DataArray(
-            values, coords=self.coords(), dims=("y", "x"), name=name,
+            values,
+            coords=self.coords(),
+            dims=("y", "x"),
+            name=name,
             attrs={"units": units, **self.attrs(), **attrs},
         )
 
@@ -221,8 +237,10 @@ class Grid:
         dy = float(y[0] - y[1]) if y.size > 1 else float(da.attrs["resolution"][1])
         if dx <= 0 or dy <= 0:
             raise bad_input(
-                "x/y coordinates", (dx, dy), "x increasing and y decreasing (north-up)",
-                "sort with da.sortby('x').sortby('y', ascending=False)"
+                "x/y coordinates",
+                (dx, dy),
+                "x increasing and y decreasing (north-up)",
+                "sort with da.sortby('x').sortby('y', ascending=False)",
             )
         crs = da.attrs.get("crs_wkt") or da.attrs.get("crs")
         if crs is None:

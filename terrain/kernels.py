@@ -27,7 +27,8 @@ def _positive_lengths(lengthscale) -> tuple[float, ...]:
     ls = np.atleast_1d(np.asarray(lengthscale, dtype=float))
     if ls.ndim != 1 or ls.size not in (1, 2) or not np.all(np.isfinite(ls)) or np.any(ls <= 0):
         raise bad_input(
-            "lengthscale", lengthscale,
+            "lengthscale",
+            lengthscale,
             "one positive length in metres (isotropic) or one per axis (x, y)",
             "e.g. lengthscale=20.0 or lengthscale=(30.0, 15.0)",
         )
@@ -169,8 +170,10 @@ class SquaredExponential(Kernel):
             lengthscale = np.asarray(gamma, dtype=float)
         else:
             raise bad_input(
-                "reading", reading, '"squared_lengthscale" (Eq 1 literally) or "lengthscale" '
-                "(the paper's prose)", "say which reading of gamma the number uses"
+                "reading",
+                reading,
+                '"squared_lengthscale" (Eq 1 literally) or "lengthscale" (the paper\'s prose)',
+                "say which reading of gamma the number uses",
             )
         ls = lengthscale.tolist()
         return cls(variance=alpha, lengthscale=ls if isinstance(ls, float) else tuple(ls), **kwargs)
@@ -223,8 +226,10 @@ class Matern(Kernel):
 
 
 def _fmt(kernel: Kernel) -> str:
-    return ", ".join(f"{v:.4g}" for v in kernel.lengths) if kernel.lengths.size > 1 else (
-        f"{kernel.lengths[0]:.4g}"
+    return (
+        ", ".join(f"{v:.4g}" for v in kernel.lengths)
+        if kernel.lengths.size > 1
+        else (f"{kernel.lengths[0]:.4g}")
     )
 
 

@@ -29,7 +29,9 @@ def _pair(pred: Any, truth: Any, *more: Any) -> tuple[np.ndarray, ...]:
     arrays = [np.asarray(a, dtype=float) for a in (pred, truth, *more)]
     if any(a.shape != arrays[0].shape for a in arrays):
         raise bad_input(
-            "shapes", [a.shape for a in arrays], "prediction, truth (and std) of one shape",
+            "shapes",
+            [a.shape for a in arrays],
+            "prediction, truth (and std) of one shape",
             "evaluate on the same grid",
         )
     ok = np.ones(arrays[0].shape, bool)

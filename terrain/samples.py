@@ -50,7 +50,9 @@ def _as_finite(name: str, values: Any, ndim: int) -> np.ndarray:
     if bad.any():
         idx = np.argwhere(bad)[0]
         raise bad_input(
-            name, arr[tuple(idx)], f"finite values (first bad entry at index {tuple(idx)})",
+            name,
+            arr[tuple(idx)],
+            f"finite values (first bad entry at index {tuple(idx)})",
             "drop or repair NaN/inf rows before building ElevationSamples",
         )
     return arr
@@ -93,23 +95,25 @@ class ElevationSamples:
         n = xy.shape[0]
         if z.shape[0] != n or z_var.shape[0] != n:
             raise bad_input(
-                "z / z_var lengths", (n, z.shape[0], z_var.shape[0]),
-                "xy, z and z_var of the same length n", "check that no column was filtered alone",
+                "z / z_var lengths",
+                (n, z.shape[0], z_var.shape[0]),
+                "xy, z and z_var of the same length n",
+                "check that no column was filtered alone",
             )
         if n == 0:
             raise bad_input("xy", xy.shape, "at least one sample", "pass some data")
         if (z_var < 0).any():
             i = int(np.argmin(z_var))
             raise bad_input(
-                "z_var", z_var[i], f"non-negative variances in m^2 (index {i} is negative)",
+                "z_var",
+                z_var[i],
+                f"non-negative variances in m^2 (index {i} is negative)",
                 "pass variances (sigma**2), not signed errors",
             )
         extra = {k: np.asarray(v) for k, v in dict(self.extra).items()}
         for key, col in extra.items():
             if col.shape[:1] != (n,):
-                raise bad_input(
-                    f"extra[{key!r}]", col.shape, f"length {n}", "one value per sample"
-                )
+                raise bad_input(f"extra[{key!r}]", col.shape, f"length {n}", "one value per sample")
         if self.duplicates not in ("merge", "average", "raise"):
             raise bad_input(
                 "duplicates", self.duplicates, '"merge", "average" or "raise"', "pick one"
@@ -134,8 +138,12 @@ class ElevationSamples:
     def subset(self, index: np.ndarray) -> ElevationSamples:
         """The samples selected by an integer or boolean index."""
         return ElevationSamples(
-            self.xy[index], self.z[index], self.z_var[index], crs=self.crs,
-            extra={k: v[index] for k, v in self.extra.items()}, duplicates="raise",
+            self.xy[index],
+            self.z[index],
+            self.z_var[index],
+            crs=self.crs,
+            extra={k: v[index] for k, v in self.extra.items()},
+            duplicates="raise",
         )
 
     def __repr__(self) -> str:

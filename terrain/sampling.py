@@ -31,8 +31,10 @@ def sample_dem(truth, xy: np.ndarray) -> np.ndarray:
     outside = (xy[:, 0] < x[0]) | (xy[:, 0] > x[-1]) | (xy[:, 1] < y[-1]) | (xy[:, 1] > y[0])
     if outside.any():
         raise bad_input(
-            "xy", f"{int(outside.sum())} points outside the DEM", "points inside the DEM's "
-            "cell centres", "clip the points to the DEM extent first",
+            "xy",
+            f"{int(outside.sum())} points outside the DEM",
+            "points inside the DEM's cell centres",
+            "clip the points to the DEM extent first",
         )
     # RegularGridInterpolator needs increasing axes: flip y (north-up rows).
     interp = RegularGridInterpolator((y[::-1], x), np.asarray(truth.values)[::-1], method="linear")
@@ -124,8 +126,8 @@ def sample_along_path(
         r = np.minimum(noise.min_range + excess, noise.max_range)
         side = rng.choice([-1.0, 1.0], m)
         pts = base + (side * r)[:, None] * normal
-        inside = (pts[:, 0] >= x[0]) & (pts[:, 0] <= x[-1]) & (pts[:, 1] >= y[-1]) & (
-            pts[:, 1] <= y[0]
+        inside = (
+            (pts[:, 0] >= x[0]) & (pts[:, 0] <= x[-1]) & (pts[:, 1] >= y[-1]) & (pts[:, 1] <= y[0])
         )
         rejected += int((~inside).sum())
         kept_xy.append(pts[inside])
@@ -136,6 +138,10 @@ def sample_along_path(
     sigma = noise.sigma(r)
     z = true_z + rng.normal(0.0, 1.0, n) * sigma
     return ElevationSamples(
-        xy, z, sigma**2, crs=grid.crs, extra={"range_m": r, "true_z": true_z},
+        xy,
+        z,
+        sigma**2,
+        crs=grid.crs,
+        extra={"range_m": r, "true_z": true_z},
         duplicates="average",
     ), rejected

@@ -84,12 +84,17 @@ def tune_paper_grid(
     for i, a in enumerate(alphas):
         for j, g in enumerate(gammas):
             kernel = SquaredExponential.from_paper(a, g, reading=reading)
-            gp = TerrainGP(kernel=kernel, mean=mean, nugget=nugget, nugget_bounds="fixed",
-                           optimize=False).fit(samples)
+            gp = TerrainGP(
+                kernel=kernel, mean=mean, nugget=nugget, nugget_bounds="fixed", optimize=False
+            ).fit(samples)
             table[i, j] = rmse(gp.predict(query), truth)
     i, j = np.unravel_index(np.nanargmin(table), table.shape)
     return PaperTuning(
-        alpha=float(alphas[i]), gamma=float(gammas[j]), reading=reading, rmse_table=table,
-        alphas=alphas, gammas=gammas,
+        alpha=float(alphas[i]),
+        gamma=float(gammas[j]),
+        reading=reading,
+        rmse_table=table,
+        alphas=alphas,
+        gammas=gammas,
         kernel=SquaredExponential.from_paper(alphas[i], gammas[j], reading=reading),
     )

@@ -56,11 +56,17 @@ def test_optimized_lml_at_least_sklearn():
     noise = 0.05**2
     gp = TerrainGP(
         kernel=SquaredExponential(1.0, 10.0, lengthscale_bounds=(1e-1, 1e3)),
-        mean=0.0, nugget=noise, nugget_bounds="fixed", n_restarts=3, seed=0,
+        mean=0.0,
+        nugget=noise,
+        nugget_bounds="fixed",
+        n_restarts=3,
+        seed=0,
     ).fit(ElevationSamples(xy, z))
     sk = GaussianProcessRegressor(
-        ConstantKernel(1.0, (1e-4, 1e6)) * RBF(10.0, (1e-1, 1e3)), alpha=noise,
-        n_restarts_optimizer=3, random_state=0,
+        ConstantKernel(1.0, (1e-4, 1e6)) * RBF(10.0, (1e-1, 1e3)),
+        alpha=noise,
+        n_restarts_optimizer=3,
+        random_state=0,
     ).fit(xy, z)
     assert gp.log_marginal_likelihood() >= sk.log_marginal_likelihood_value_ - 1e-4
 
@@ -72,8 +78,9 @@ def test_per_point_noise_equals_dense_solve():
     kern = Matern(2.0, 18.0, nu=2.5)
     nugget = 0.02
     mean_fn = lambda p: 0.01 * p[:, 0] + 1.0  # noqa: E731
-    gp = TerrainGP(kernel=kern, mean=mean_fn, nugget=nugget, nugget_bounds="fixed",
-                   optimize=False).fit(ElevationSamples(xy, z, z_var))
+    gp = TerrainGP(
+        kernel=kern, mean=mean_fn, nugget=nugget, nugget_bounds="fixed", optimize=False
+    ).fit(ElevationSamples(xy, z, z_var))
     q = _query()
     K = kern(xy) + np.diag(z_var + nugget)
     Ks = kern(q, xy)
@@ -90,9 +97,13 @@ def test_per_point_noise_equals_dense_solve():
 
 @pytest.mark.parametrize(
     "kernel",
-    [SquaredExponential(2.0, 12.0), SquaredExponential(2.0, (9.0, 25.0)),
-     Matern(2.0, 12.0, nu=1.5), Matern(2.0, (9.0, 25.0), nu=2.5),
-     Matern(2.0, 30.0, nu=2.5) + SquaredExponential(0.3, 5.0)],
+    [
+        SquaredExponential(2.0, 12.0),
+        SquaredExponential(2.0, (9.0, 25.0)),
+        Matern(2.0, 12.0, nu=1.5),
+        Matern(2.0, (9.0, 25.0), nu=2.5),
+        Matern(2.0, 30.0, nu=2.5) + SquaredExponential(0.3, 5.0),
+    ],
 )
 def test_lml_gradient_matches_finite_differences(kernel):
     xy, z = _data(n=40)
@@ -105,8 +116,10 @@ def test_lml_gradient_matches_finite_differences(kernel):
     for j in range(theta.size):
         e = np.zeros_like(theta)
         e[j] = h
-        fd.append((gp.log_marginal_likelihood(theta + e) - gp.log_marginal_likelihood(theta - e))
-                  / (2 * h))
+        fd.append(
+            (gp.log_marginal_likelihood(theta + e) - gp.log_marginal_likelihood(theta - e))
+            / (2 * h)
+        )
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6)
 
 
@@ -173,8 +186,9 @@ def test_ill_conditioned_matrix_gets_jitter_with_warning():
     # Two points 1e-9 m apart with zero noise: K is singular to machine precision.
     xy = np.array([[0.0, 0.0], [1e-9, 0.0], [30.0, 5.0], [60.0, 40.0]])
     z = np.array([1.0, 1.0, 2.0, 0.5])
-    gp = TerrainGP(kernel=SquaredExponential(1.0, 20.0), nugget=0.0, nugget_bounds="fixed",
-                   optimize=False)
+    gp = TerrainGP(
+        kernel=SquaredExponential(1.0, 20.0), nugget=0.0, nugget_bounds="fixed", optimize=False
+    )
     with pytest.warns(JitterWarning, match="added jitter"):
         gp.fit(ElevationSamples(xy, z))
     assert gp.jitter_ > 0

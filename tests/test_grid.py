@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
-from rasterio.transform import from_origin, xy as rio_xy
+from rasterio.transform import from_origin
+from rasterio.transform import xy as rio_xy
 
 from terrain import CRSMismatchError, Grid, InputError
 from terrain.grid import check_same_crs
@@ -31,8 +32,13 @@ def test_xy_is_row_major_and_coords_roundtrip():
 
 @pytest.mark.parametrize(
     "bounds, res",
-    [((0, 0, 0, 10), 1.0), ((0, 10, 10, 0), 1.0), ((0, 0, 10, 10), 0.0),
-     ((0, 0, 10, 10), 50.0), ((0, 0, np.nan, 10), 1.0)],
+    [
+        ((0, 0, 0, 10), 1.0),
+        ((0, 10, 10, 0), 1.0),
+        ((0, 0, 10, 10), 0.0),
+        ((0, 0, 10, 10), 50.0),
+        ((0, 0, np.nan, 10), 1.0),
+    ],
 )
 def test_empty_or_inverted_grid_rejected(bounds, res):
     with pytest.raises(InputError):
@@ -45,5 +51,9 @@ def test_crs_checks():
     with pytest.raises(InputError, match="crs"):
         Grid.from_bounds((0, 0, 10, 10), 1.0, crs="not a crs")
     with pytest.raises(CRSMismatchError, match="32608"):
-        check_same_crs(Grid.from_bounds((0, 0, 1, 1), 1).crs,
-                       Grid.from_bounds((0, 0, 1, 1), 1, crs=32607).crs, "samples", "grid")
+        check_same_crs(
+            Grid.from_bounds((0, 0, 1, 1), 1).crs,
+            Grid.from_bounds((0, 0, 1, 1), 1, crs=32607).crs,
+            "samples",
+            "grid",
+        )

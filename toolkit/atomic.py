@@ -32,8 +32,9 @@ def atomic_path(final: str | os.PathLike) -> Iterator[Path]:
     On any exception (or Ctrl-C) the temporary file is removed and ``final`` is untouched.
     """
     final = Path(final)
-    fd, tmp = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=final.suffix + ".tmp",
-                               dir=final.parent)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{final.stem}.", suffix=final.suffix + ".tmp", dir=final.parent
+    )
     os.close(fd)
     tmp_path = Path(tmp)
     try:

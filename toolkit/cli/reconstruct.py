@@ -28,7 +28,9 @@ def _read_samples_csv(path: Path, crs: str) -> ElevationSamples:
     missing = [c for c in ("x", "y", "z") if c not in names]
     if missing:
         raise bad_input(
-            f"{path.name} columns", list(names), f"columns x, y, z[, z_var]; missing {missing}",
+            f"{path.name} columns",
+            list(names),
+            f"columns x, y, z[, z_var]; missing {missing}",
             "rename the header",
         )
     data = np.atleast_1d(data)
@@ -38,18 +40,34 @@ def _read_samples_csv(path: Path, crs: str) -> ElevationSamples:
 
 def _print_demo(result) -> None:
     table = Table(title=f"Fig. 5 comparison on the default site (seed {result.seed})")
-    for col in ("method", "RMSE [m]", "RMSE on hull [m]", "covered", "95 % coverage",
-                "68 % coverage", "time [s]"):
+    for col in (
+        "method",
+        "RMSE [m]",
+        "RMSE on hull [m]",
+        "covered",
+        "95 % coverage",
+        "68 % coverage",
+        "time [s]",
+    ):
         table.add_column(col, justify="right")
-    names = {"gp_satellite": "GP + satellite prior", "gp_constant": "GP, constant mean",
-             "delaunay": "Delaunay linear"}
+    names = {
+        "gp_satellite": "GP + satellite prior",
+        "gp_constant": "GP, constant mean",
+        "delaunay": "Delaunay linear",
+    }
     for key, label in names.items():
         m = result.metrics[key]
         cov95 = f"{100 * m['coverage_95']:.1f} %" if "coverage_95" in m else "—"
         cov68 = f"{100 * m['coverage_68']:.1f} %" if "coverage_68" in m else "—"
-        table.add_row(label, f"{m['rmse']:.3f}", f"{m['rmse_on_delaunay_hull']:.3f}",
-                      f"{100 * m['covered_fraction']:.1f} %", cov95, cov68,
-                      f"{result.timings[key]:.1f}")
+        table.add_row(
+            label,
+            f"{m['rmse']:.3f}",
+            f"{m['rmse_on_delaunay_hull']:.3f}",
+            f"{100 * m['covered_fraction']:.1f} %",
+            cov95,
+            cov68,
+            f"{result.timings[key]:.1f}",
+        )
     console.print(table)
     console.print(
         f"{result.samples.n} landmarks ({result.n_rejected} candidates outside the site "
@@ -76,8 +94,12 @@ def reconstruct(
     JSON summary in --out. With a CSV: a NetCDF map with elevation and elevation_std.
     """
     if demo == (samples is not None):
-        raise bad_input("SAMPLES / --demo", samples, "exactly one of a CSV path or --demo",
-                        "pass a CSV file, or --demo")
+        raise bad_input(
+            "SAMPLES / --demo",
+            samples,
+            "exactly one of a CSV path or --demo",
+            "pass a CSV file, or --demo",
+        )
     out_dir = ensure_writable_dir(out)
     if demo:
         from ..demo import reconstruction_demo
@@ -97,8 +119,9 @@ def reconstruct(
     data = _read_samples_csv(samples, crs)
     w, s = data.xy.min(axis=0)
     e, n = data.xy.max(axis=0)
-    grid = Grid.from_bounds((w, s, max(e, w + resolution), max(n, s + resolution)), resolution,
-                            crs=crs)
+    grid = Grid.from_bounds(
+        (w, s, max(e, w + resolution), max(n, s + resolution)), resolution, crs=crs
+    )
     with console.status(f"fitting a GP to {data.n} samples..."):
         ds = TerrainGP(seed=seed).fit(data).predict_grid(grid)
     target = out_dir / "reconstruction.nc"
