@@ -75,8 +75,8 @@ def _case(impl: str, n: int, seed: int, queue) -> None:
             "total_s": t2 - t0,
             "peak_rss_mb": peak / 1024,
             "base_rss_mb": base_rss / 1024,
-            "mean": mean.astype(np.float32),
-            "std": std.astype(np.float32),
+            "mean": mean,
+            "std": std,
         }
     )
 

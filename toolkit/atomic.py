@@ -37,8 +37,11 @@ def atomic_path(final: str | os.PathLike) -> Iterator[Path]:
     )
     os.close(fd)
     tmp_path = Path(tmp)
+    umask = os.umask(0)
+    os.umask(umask)
     try:
         yield tmp_path
+        os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp makes 0600; products are ordinary files
         os.replace(tmp_path, final)
     except BaseException:
         tmp_path.unlink(missing_ok=True)

@@ -40,16 +40,9 @@ def _read_samples_csv(path: Path, crs: str) -> ElevationSamples:
 
 def _print_demo(result) -> None:
     table = Table(title=f"Fig. 5 comparison on the default site (seed {result.seed})")
-    for col in (
-        "method",
-        "RMSE [m]",
-        "RMSE on hull [m]",
-        "covered",
-        "95 % coverage",
-        "68 % coverage",
-        "time [s]",
-    ):
-        table.add_column(col, justify="right")
+    table.add_column("method", no_wrap=True)
+    for col in ("RMSE m", "on hull", "covered", "95 % in", "68 % in", "time s"):
+        table.add_column(col, justify="right", no_wrap=True)
     names = {
         "gp_satellite": "GP + satellite prior",
         "gp_constant": "GP, constant mean",
