@@ -14,6 +14,7 @@ import numpy as np
 from .errors import bad_input
 
 __all__ = [
+    "calibration_curve",
     "covered_fraction",
     "evaluate",
     "interval_coverage",
@@ -84,6 +85,28 @@ def nlpd(pred: Any, std: Any, truth: Any) -> float:
     p, t, s = _pair(pred, truth, std)
     var = np.maximum(s, np.finfo(float).tiny) ** 2
     return float(np.mean(0.5 * np.log(2 * np.pi * var) + 0.5 * (t - p) ** 2 / var))
+
+
+def calibration_curve(
+    pred: Any,
+    std: Any,
+    truth: Any,
+    levels: Any = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Observed coverage of central Gaussian intervals at each nominal level.
+
+    Returns ``(levels, observed)``, both shape (k,): the fraction of cells whose truth lies in
+    ``pred ± Phi^-1((1 + level) / 2) * std``. A calibrated map lies on the diagonal.
+    """
+    from scipy.stats import norm
+
+    levels = np.asarray(levels, dtype=float)
+    if np.any((levels <= 0) | (levels >= 1)):
+        raise bad_input("levels", levels, "nominal levels strictly between 0 and 1", "")
+    p, t, s = _pair(pred, truth, std)
+    zscore = np.abs(t - p) / np.maximum(s, np.finfo(float).tiny)
+    half_widths = norm.ppf(0.5 + levels / 2)
+    return levels, (zscore[None, :] <= half_widths[:, None]).mean(axis=1)
 
 
 def evaluate(pred: Any, truth: Any, std: Any | None = None) -> dict[str, float]:

@@ -3,7 +3,14 @@ import pytest
 
 from terrain import CRSMismatchError, ElevationSamples, Grid, InputError
 from terrain.baselines import delaunay_linear
-from terrain.metrics import evaluate, interval_coverage, nlpd, rmse, standardized_error_stats
+from terrain.metrics import (
+    calibration_curve,
+    evaluate,
+    interval_coverage,
+    nlpd,
+    rmse,
+    standardized_error_stats,
+)
 
 
 def test_metrics_hand_computed():
@@ -26,6 +33,22 @@ def test_metrics_hand_computed():
     assert nlpd(pred, std, truth) == pytest.approx(ref)
     with pytest.raises(InputError, match="shape"):
         rmse(pred, truth[:2])
+
+
+def test_calibration_curve_on_exact_gaussian_errors():
+    # Errors drawn from N(0, std^2): observed coverage equals nominal up to sampling noise
+    # (binomial sd <= 0.5 / sqrt(200000) ~ 0.0011).
+    rng = np.random.default_rng(0)
+    std = rng.uniform(0.1, 2.0, 200_000)
+    truth = rng.normal(0.0, std)
+    levels, observed = calibration_curve(np.zeros_like(std), std, truth)
+    np.testing.assert_allclose(observed, levels, atol=0.006)
+    # Over-confident std (half the truth) covers far less than nominal at 95 %.
+    _, over = calibration_curve(np.zeros_like(std), std / 2, truth, levels=[0.95])
+    # Hand computation: P(|Z| <= 1.95996 / 2) = 2 Phi(0.97998) - 1 = 0.67290
+    assert over[0] == pytest.approx(0.6729, abs=0.006)
+    with pytest.raises(InputError, match="levels"):
+        calibration_curve([0.0], [1.0], [0.0], levels=[1.0])
 
 
 def test_delaunay_reproduces_plane_inside_hull_nan_outside():

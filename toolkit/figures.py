@@ -6,13 +6,16 @@ from pathlib import Path
 
 import numpy as np
 
+from terrain.metrics import calibration_curve
+
 from .atomic import atomic_path
 
 __all__ = ["plot_demo"]
 
 
 def plot_demo(result, path: str | Path) -> Path:
-    """Truth, the three reconstructions and the GP's 1-sigma, as one PNG (paper Fig. 5-6)."""
+    """Truth, the three reconstructions, 1-sigma, error, calibration and samples as one PNG
+    (paper Fig. 5-6)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -51,9 +54,9 @@ def plot_demo(result, path: str | Path) -> Path:
             (0.0, None),
         ),
     ]
-    fig, axes = plt.subplots(2, 3, figsize=(15, 9.5), constrained_layout=True)
+    fig, axes = plt.subplots(2, 4, figsize=(20, 9.5), constrained_layout=True)
     px, py = result.path[:, 0] - w, result.path[:, 1] - s
-    for ax, (title, img, cmap, (lo, hi)) in zip(axes.ravel(), panels, strict=True):
+    for ax, (title, img, cmap, (lo, hi)) in zip(axes.ravel()[:6], panels, strict=True):
         im = ax.imshow(img, extent=extent, origin="upper", cmap=cmap, vmin=lo, vmax=hi)
         ax.plot(px, py, color="k", lw=0.8)
         key = {
@@ -68,6 +71,32 @@ def plot_demo(result, path: str | Path) -> Path:
         ax.set_xlabel("easting from SW corner [m]")
         ax.set_ylabel("northing [m]")
         fig.colorbar(im, ax=ax, shrink=0.8, label="m")
+    ax = axes.ravel()[6]
+    for key, label in (("gp_satellite", "GP + satellite prior"), ("gp_constant", "GP, constant")):
+        ds = result.maps[key]
+        levels, observed = calibration_curve(ds["elevation"], ds["elevation_std"], truth)
+        ax.plot(levels, observed, "o-", label=label)
+    ax.plot([0, 1], [0, 1], "k--", lw=0.8, label="calibrated")
+    ax.set(
+        xlabel="nominal interval level",
+        ylabel="fraction of cells inside",
+        title="Calibration of the 1-sigma maps",
+        xlim=(0, 1),
+        ylim=(0, 1),
+    )
+    ax.legend(loc="upper left")
+    ax = axes.ravel()[7]
+    xy = result.samples.xy
+    sc = ax.scatter(xy[:, 0] - w, xy[:, 1] - s, c=np.sqrt(result.samples.z_var), s=1, cmap="plasma")
+    ax.set(
+        xlim=extent[:2],
+        ylim=extent[2:],
+        aspect="equal",
+        title=f"{result.samples.n} landmarks (colour: 1-sigma)",
+        xlabel="easting from SW corner [m]",
+        ylabel="northing [m]",
+    )
+    fig.colorbar(sc, ax=ax, shrink=0.8, label="m")
     fig.suptitle(f"glacimap reconstruct --demo  (seed {result.seed}, {result.samples.n} landmarks)")
     path = Path(path)
     with atomic_path(path) as tmp:

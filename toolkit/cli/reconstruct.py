@@ -41,7 +41,7 @@ def _read_samples_csv(path: Path, crs: str) -> ElevationSamples:
 def _print_demo(result) -> None:
     table = Table(title=f"Fig. 5 comparison on the default site (seed {result.seed})")
     table.add_column("method", no_wrap=True)
-    for col in ("RMSE m", "on hull", "covered", "95 % in", "68 % in", "time s"):
+    for col in ("RMSE m", "hull m", "cover", "in 95%", "in 68%", "sec"):
         table.add_column(col, justify="right", no_wrap=True)
     names = {
         "gp_satellite": "GP + satellite prior",
