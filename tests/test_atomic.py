@@ -4,7 +4,7 @@ import stat
 import pytest
 
 from terrain import InputError
-from toolkit.atomic import atomic_path, ensure_writable_dir
+from terrain.atomic import atomic_path, ensure_writable_dir
 
 
 def test_atomic_path_success_and_failure(tmp_path):

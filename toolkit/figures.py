@@ -8,7 +8,7 @@ import numpy as np
 
 from terrain.metrics import calibration_curve
 
-from .atomic import atomic_path
+from terrain.atomic import atomic_path
 
 __all__ = ["plot_demo"]
 

@@ -14,7 +14,7 @@ from rich.table import Table
 from terrain import ElevationSamples, Grid
 from terrain.errors import bad_input
 
-from ..atomic import atomic_path, ensure_writable_dir
+from terrain.atomic import atomic_path, ensure_writable_dir
 
 console = Console()
 

@@ -8,7 +8,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from terrain.errors import bad_input
+from .errors import bad_input
 
 __all__ = ["atomic_path", "ensure_writable_dir"]
 
