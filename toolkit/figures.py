@@ -6,9 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from terrain.metrics import calibration_curve
-
 from terrain.atomic import atomic_path
+from terrain.metrics import calibration_curve
 
 __all__ = ["plot_demo"]
 

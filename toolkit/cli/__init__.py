@@ -9,7 +9,7 @@ from rich.console import Console
 
 from terrain.errors import GlacimapError
 
-from . import reconstruct
+from . import reconstruct, sweep
 
 app = typer.Typer(
     name="glacimap",
@@ -26,6 +26,7 @@ def _root() -> None:
 
 
 app.command("reconstruct")(reconstruct.reconstruct)
+app.command("sweep")(sweep.sweep_command)
 
 err_console = Console(stderr=True)
 

@@ -12,9 +12,8 @@ from rich.console import Console
 from rich.table import Table
 
 from terrain import ElevationSamples, Grid
-from terrain.errors import bad_input
-
 from terrain.atomic import atomic_path, ensure_writable_dir
+from terrain.errors import bad_input
 
 console = Console()
 
