@@ -7,7 +7,7 @@ from typing import Any
 
 from terrain.atomic import atomic_path
 
-__all__ = ["plot_sweep"]
+__all__ = ["plot_plan", "plot_sweep"]
 
 _LABELS = {"lawnmower": "Lawnmower", "piecewise_continuous": "Piecewise continuous"}
 
@@ -76,4 +76,36 @@ def _n_terrains(table: dict[str, Any]) -> int:
 def _save(fig, path: Path) -> Path:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90, format="png")
+    return path
+
+
+def plot_plan(plan, prior, path: str | Path) -> Path:
+    """The plan's driven path and samples over the prior DEM, as a PNG (paper Fig. 7, 12)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, ax = plt.subplots(figsize=(7, 6), constrained_layout=True)
+    x, y = np.asarray(prior["x"]), np.asarray(prior["y"])
+    im = ax.imshow(
+        np.asarray(prior.values), extent=(x[0], x[-1], y[-1], y[0]), origin="upper", cmap="terrain"
+    )
+    fig.colorbar(im, ax=ax, shrink=0.8, label="prior elevation [m]")
+    wp = plan.waypoints
+    ax.plot(wp[:, 0], wp[:, 1], "k-", lw=1.0, label="driven path")
+    ax.plot(plan.samples[:, 0], plan.samples[:, 1], ".", ms=2, color="crimson", label="samples")
+    ax.set(
+        xlabel="easting [m]",
+        ylabel="northing [m]",
+        aspect="equal",
+        title=f"{_LABELS.get(plan.pattern, plan.pattern)}, {plan.n_swaths} swaths, "
+        f"{plan.path_length:.0f} m",
+    )
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.legend(loc="lower right", fontsize=8)
+    path = Path(path)
+    _save(fig, path)
+    plt.close(fig)
     return path

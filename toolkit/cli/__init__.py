@@ -9,7 +9,7 @@ from rich.console import Console
 
 from terrain.errors import GlacimapError
 
-from . import reconstruct, sweep
+from . import plan, reconstruct, sweep
 
 app = typer.Typer(
     name="glacimap",
@@ -25,6 +25,7 @@ def _root() -> None:
     """Certified, probabilistic elevation maps of glaciers from a rover survey."""
 
 
+app.command("plan")(plan.plan_command)
 app.command("reconstruct")(reconstruct.reconstruct)
 app.command("sweep")(sweep.sweep_command)
 
