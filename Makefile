@@ -33,6 +33,7 @@ format: setup
 ## benchmarks: printed table + JSON in benchmarks/results/
 bench: setup
 	$(BIN)/python benchmarks/gp_exact.py --out benchmarks/results/gp_exact.json
+	$(BIN)/python benchmarks/planners.py --out benchmarks/results/planners.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

@@ -229,7 +229,9 @@ def summarize(rows: list[dict[str, Any]], limits: dict[str, float]) -> dict[str,
 
     ``limits`` maps a label (e.g. ``"paper Class 3 (9 ft)"``) to its largest RMSE, m. A
     swath count meets a limit when the mean RMSE over terrains is at most the limit (the
-    paper's Fig. 11); ``fraction_meeting`` adds the share of terrains that meet it alone.
+    paper's Fig. 11, "average RMS error"); ``minimum_swaths_by_median`` uses the median (the
+    RMSE distribution over terrains is heavy-tailed), and ``fraction_meeting`` gives the share
+    of terrains that meet each limit on their own.
     """
     metrics = ("rmse", "coverage_95", "path_length", "scc", "alpha", "beta", "n_samples")
     table: dict[str, dict[str, dict[str, float]]] = {}
@@ -243,23 +245,32 @@ def summarize(rows: list[dict[str, Any]], limits: dict[str, float]) -> dict[str,
                 entry[f"{m}_mean"] = float(np.nanmean(vals)) if np.isfinite(vals).any() else None
                 entry[f"{m}_std"] = float(np.nanstd(vals)) if np.isfinite(vals).any() else None
             rm = np.array([r["rmse"] for r in sel])
+            entry["rmse_median"] = float(np.median(rm))
             entry["fraction_meeting"] = {k: float(np.mean(rm <= v)) for k, v in limits.items()}
             table[pattern][str(n)] = entry
-    minimum = {
-        label: {
-            pattern: next(
-                (
-                    int(n)
-                    for n, e in sorted(t.items(), key=lambda kv: int(kv[0]))
-                    if e["rmse_mean"] <= limit
-                ),
-                None,
-            )
-            for pattern, t in table.items()
+
+    def first_meeting(stat: str) -> dict[str, dict[str, int | None]]:
+        return {
+            label: {
+                pattern: next(
+                    (
+                        int(n)
+                        for n, e in sorted(t.items(), key=lambda kv: int(kv[0]))
+                        if e[stat] <= limit
+                    ),
+                    None,
+                )
+                for pattern, t in table.items()
+            }
+            for label, limit in limits.items()
         }
-        for label, limit in limits.items()
+
+    return {
+        "limits_m": limits,
+        "by_pattern": table,
+        "minimum_swaths": first_meeting("rmse_mean"),
+        "minimum_swaths_by_median": first_meeting("rmse_median"),
     }
-    return {"limits_m": limits, "by_pattern": table, "minimum_swaths": minimum}
 
 
 def _client(scheduler: Any, n_workers: int | None):

@@ -134,9 +134,9 @@ def sweep_command(
         "The paper's answer (Fig. 11, Class 3 at 0.4572 m): lawnmower 4 swaths, "
         "piecewise continuous 2 swaths."
     )
-    rate = result.computed / seconds if seconds > 0 else float("nan")
+    rate = f"{result.computed / seconds:.2f} tasks/s" if result.computed else "nothing to run"
     console.print(
         f"{result.computed} tasks computed, {result.skipped} resumed from the store, "
-        f"{seconds:.1f} s ({rate:.2f} tasks/s); wrote {result.out}/summary.json, "
+        f"{seconds:.1f} s ({rate}); wrote {result.out}/summary.json, "
         + ", ".join(str(f.name) for f in figures)
     )
