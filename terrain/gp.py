@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 from scipy.optimize import minimize
+from threadpoolctl import threadpool_limits
 
 from .errors import NotFittedError, NumericalError, bad_input
 from .grid import Grid, check_same_crs
@@ -28,10 +29,17 @@ from .kernels import Kernel, SquaredExponential
 from .linalg import cholesky_jitter, inverse_from_cholesky
 from .prior import as_mean_function
 from .samples import ElevationSamples
+from .tiled import TileSpec, predict_tiled
 
 __all__ = ["TerrainGP"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
+
+
+def _shortest_lengthscale(kernel) -> float:
+    """The shortest length scale of a kernel or of any part of a sum, m."""
+    parts = getattr(kernel, "parts", (kernel,))
+    return float(min(np.min(p.lengths) for p in parts))
 
 
 def _version() -> str:
@@ -103,6 +111,9 @@ class TerrainGP:
         max_fit_samples: int | None = 2000,
         chunk_size: int | None = None,
         seed: int = 0,
+        method: str = "auto",
+        tiles: TileSpec | None = None,
+        exact_max_samples: int = 4000,
     ) -> None:
         self.kernel = kernel
         self.mean = mean
@@ -113,6 +124,9 @@ class TerrainGP:
         self.max_fit_samples = max_fit_samples
         self.chunk_size = chunk_size
         self.seed = seed
+        self.method = method
+        self.tiles = tiles
+        self.exact_max_samples = exact_max_samples
 
     # -- settings ---------------------------------------------------------------------------
     def _check_settings(self) -> None:
@@ -133,6 +147,17 @@ class TerrainGP:
             raise bad_input("n_restarts", self.n_restarts, ">= 0", "e.g. n_restarts=2")
         if self.max_fit_samples is not None and int(self.max_fit_samples) < 3:
             raise bad_input("max_fit_samples", self.max_fit_samples, ">= 3 or None", "")
+        if self.method not in ("auto", "exact", "tiled"):
+            raise bad_input(
+                "method",
+                self.method,
+                '"auto", "exact" or "tiled"',
+                '"auto" takes exact up to exact_max_samples and tiled above',
+            )
+        if self.tiles is not None and not isinstance(self.tiles, TileSpec):
+            raise bad_input("tiles", self.tiles, "a terrain.tiled.TileSpec or None", "")
+        if int(self.exact_max_samples) < 3:
+            raise bad_input("exact_max_samples", self.exact_max_samples, ">= 3", "")
         if self.chunk_size is not None and int(self.chunk_size) < 1:
             raise bad_input("chunk_size", self.chunk_size, ">= 1 or None", "")
 
@@ -212,6 +237,24 @@ class TerrainGP:
                 )
             kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
         self.kernel_, self.nugget_ = kernel, nugget
+        exact = self.method == "exact" or (
+            self.method == "auto" and samples.n <= self.exact_max_samples
+        )
+        self.method_ = "exact" if exact else "tiled"
+        if not exact:
+            # Tiled: no global factor. Eq 9 is reported on the fit subset (exact there).
+            self.tiles_ = self.tiles or TileSpec.for_lengthscale(_shortest_lengthscale(kernel))
+            idx = (
+                self.fit_index_
+                if self.fit_index_.size < samples.n
+                else (np.sort(rng.choice(samples.n, size=min(samples.n, 2000), replace=False)))
+            )
+            self.log_marginal_likelihood_value_ = self._lml(
+                self._theta(kernel, nugget), kernel, X[idx], resid[idx], self.z_var_[idx], False
+            )
+            self.jitter_ = 0.0
+            self.fit_seconds_ = time.perf_counter() - t0
+            return self
 
         # R&W Alg. 2.1 lines 2-3: L = chol(K + Sigma), alpha = L^T \ (L \ y)
         K = kernel(X)
@@ -249,7 +292,11 @@ class TerrainGP:
         starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(int(self.n_restarts))]
         best = None
         for theta0 in starts:
-            res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds)
+            # Single-threaded BLAS for the many small factorizations: on this 2-core machine
+            # OpenBLAS's threads made a Cholesky of n = 1000 take 494 ms instead of 23 ms
+            # whenever the other core was busy (docs/terrain.md, Performance).
+            with threadpool_limits(1):
+                res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds)
             self.optimizer_runs_.append(
                 {
                     "start": theta0.tolist(),
@@ -323,7 +370,7 @@ class TerrainGP:
 
     # -- predict ----------------------------------------------------------------------------
     def _check_fitted(self) -> None:
-        if not hasattr(self, "L_"):
+        if not hasattr(self, "method_"):
             raise NotFittedError("This TerrainGP is not fitted yet. Call fit(samples) first.")
 
     def _chunk_rows(self) -> int:
@@ -356,6 +403,21 @@ class TerrainGP:
         if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
             raise bad_input("xy", xy.shape, "finite query points of shape (m, 2)", "")
         m = xy.shape[0]
+        if self.method_ == "tiled":
+            resid_mean, std, stats = predict_tiled(
+                xy - self.X_offset_,
+                self.X_train_,
+                self.y_resid_,
+                self.z_var_ + self.nugget_,
+                self.kernel_,
+                self.tiles_,
+                return_std,
+            )
+            self.tile_stats_ = stats
+            mean = np.asarray(self.mean_(xy), dtype=float) + resid_mean
+            if return_std and include_nugget:
+                std = np.sqrt(std**2 + self.nugget_)
+            return (mean, std) if return_std else mean
         mean = np.empty(m)
         std = np.empty(m) if return_std else None
         step = self._chunk_rows()
@@ -376,8 +438,20 @@ class TerrainGP:
                 std[sl] = np.sqrt(np.maximum(var, 0.0))
         return (mean, std) if return_std else mean
 
-    def predict_grid(self, grid: Grid, include_nugget: bool = False):
+    def predict_grid(
+        self, grid: Grid, include_nugget: bool = False, chunks: int | tuple[int, int] | None = None
+    ):
         """Posterior mean and 1-sigma on every cell centre of ``grid``, in bounded memory.
+
+        Parameters
+        ----------
+        grid : Grid
+            Cells to predict; same CRS as the samples.
+        include_nugget : bool
+            As in :meth:`predict`.
+        chunks : int or (int, int), optional
+            Return a Dask-backed Dataset computed block by block (rows, columns per block),
+            on the active ``dask.distributed`` client if there is one, else local threads.
 
         Returns
         -------
@@ -389,6 +463,10 @@ class TerrainGP:
 
         self._check_fitted()
         check_same_crs(self.crs_, grid.crs, "samples", "grid")
+        if chunks is not None:
+            from .chunked import predict_grid_dask
+
+            return predict_grid_dask(self, grid, chunks, include_nugget)
         mean, std = self.predict(grid.xy(), return_std=True, include_nugget=include_nugget)
         ds = xr.Dataset(
             {
@@ -415,12 +493,19 @@ class TerrainGP:
             zip(self.kernel_.param_names, np.exp(self.kernel_.theta).tolist(), strict=True)
         )
         hyper["nugget"] = self.nugget_
+        method = "exact GP (Rasmussen & Williams Alg. 2.1)"
+        if self.method_ == "tiled":
+            t = self.tiles_
+            method = (
+                f"tiled local GP (tile {t.tile:g} m, blend {t.blend:g} m, halo {t.halo:g} m,"
+                f" at most {t.max_points} samples per tile)"
+            )
         return {
-            "method": "exact GP (Rasmussen & Williams Alg. 2.1)",
+            "method": method,
             "kernel": repr(self.kernel_),
             "hyperparameters": json.dumps(hyper),
             "mean_function": repr(self.mean_),
-            "n_samples": int(self.alpha_.size),
+            "n_samples": int(self.samples_.n),
             "n_fit_samples": int(self.fit_index_.size),
             "n_merged_duplicates": int(self.samples_.n_merged),
             "log_marginal_likelihood": self.log_marginal_likelihood_value_,

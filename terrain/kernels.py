@@ -205,12 +205,19 @@ class Matern(Kernel):
             raise bad_input("nu", self.nu, "1.5 or 2.5", "use SquaredExponential for nu = inf")
 
     def _rho(self, d2: np.ndarray) -> np.ndarray:
-        r = np.sqrt(d2)
+        # In place: these matrices are the bulk of the work of a tiled prediction.
+        a = np.sqrt(d2 * (3.0 if self.nu == 1.5 else 5.0))
+        e = np.exp(-a)
         if self.nu == 1.5:
-            a = np.sqrt(3.0) * r
-            return (1.0 + a) * np.exp(-a)
-        a = np.sqrt(5.0) * r
-        return (1.0 + a + a * a / 3.0) * np.exp(-a)
+            a += 1.0
+            a *= e
+            return a
+        poly = a * a
+        poly *= 1.0 / 3.0
+        poly += a
+        poly += 1.0
+        poly *= e
+        return poly
 
     def _drho_dlog_ls(self, d2: np.ndarray) -> np.ndarray:
         # With a = sqrt(2 nu) r / l: d rho / d log l = c(a) * (r/l)^2, no 1/r singularity:

@@ -1,0 +1,110 @@
+"""Tiled local GP: equals the exact GP where both run, seamless, deterministic, Dask-ready."""
+
+import numpy as np
+import pytest
+
+from terrain import ElevationSamples, Grid, InputError, Matern, TerrainGP
+from terrain.tiled import TileSpec
+
+
+@pytest.fixture(scope="module")
+def setup():
+    rng = np.random.default_rng(4)
+    grid = Grid.from_bounds((0, 0, 160, 120), 2.0)
+    xy = rng.uniform(0, 160, (1500, 2)) * [1, 0.75]
+    z = 2 * np.sin(xy[:, 0] / 12) + np.cos(xy[:, 1] / 9) + rng.normal(0, 0.05, len(xy))
+    samples = ElevationSamples(xy, z, 0.05**2, crs=grid.crs)
+    kw = dict(
+        kernel=Matern(1.5, 10.0, nu=2.5),
+        mean="constant",
+        nugget=1e-4,
+        nugget_bounds="fixed",
+        optimize=False,
+    )
+    exact = TerrainGP(method="exact", **kw).fit(samples)
+    tiled = TerrainGP(method="tiled", tiles=TileSpec(tile=20, blend=3, halo=35), **kw)
+    return grid, samples, exact, tiled.fit(samples), kw
+
+
+def test_tiled_matches_exact(setup):
+    grid, _, exact, tiled, _ = setup
+    m1, s1 = exact.predict(grid.xy(), return_std=True)
+    m2, s2 = tiled.predict(grid.xy(), return_std=True)
+    # Reference: the exact GP (R&W Alg. 2.1) on all samples; halo = 3.5 length scales.
+    assert np.max(np.abs(m1 - m2)) < 0.02
+    assert np.median(np.abs(s2 - s1) / s1) < 0.01
+    assert tiled.tile_stats_["tiles"] > 20 and tiled.method_ == "tiled"
+
+
+def test_no_seams_at_tile_borders(setup):
+    grid, _, exact, tiled, _ = setup
+    ds = tiled.predict_grid(grid)
+    ref = exact.predict_grid(grid)
+    for var in ("elevation", "elevation_std"):
+        # Cell-to-cell differences of the tiled map never exceed the exact map's by more than
+        # a small fraction of the exact map's own largest step: a seam would be a jump.
+        jump = np.abs(np.diff(ds[var].values, axis=1)) - np.abs(np.diff(ref[var].values, axis=1))
+        step = np.abs(np.diff(ref[var].values, axis=1)).max()
+        assert jump.max() < 0.05 * step, var
+
+
+def test_far_from_data_is_prior_and_deterministic(setup):
+    _, samples, _, tiled, kw = setup
+    far = np.array([[5000.0, 5000.0], [-3000.0, 100.0]])
+    m, s = tiled.predict(far, return_std=True)
+    np.testing.assert_allclose(m, samples.z.mean())  # constant mean = mean of the data
+    np.testing.assert_allclose(s, np.sqrt(1.5))  # prior variance of the kernel
+    q = np.random.default_rng(0).uniform(0, 150, (2000, 2))
+    from terrain.tiled import predict_tiled
+
+    X = samples.xy - tiled.X_offset_
+    args = (
+        q - tiled.X_offset_,
+        X,
+        tiled.y_resid_,
+        tiled.z_var_ + tiled.nugget_,
+        tiled.kernel_,
+        tiled.tiles_,
+    )
+    a = predict_tiled(*args, workers=1)
+    b = predict_tiled(*args, workers=2)
+    np.testing.assert_array_equal(a[0], b[0])  # same bytes whatever the thread count
+    np.testing.assert_array_equal(a[1], b[1])
+
+
+def test_auto_switches_at_threshold(setup):
+    _, samples, _, _, kw = setup
+    assert TerrainGP(exact_max_samples=5000, **kw).fit(samples).method_ == "exact"
+    assert TerrainGP(exact_max_samples=1000, **kw).fit(samples).method_ == "tiled"
+
+
+def test_dask_chunks_equal_in_memory(setup):
+    grid, _, _, tiled, _ = setup
+    ref = tiled.predict_grid(grid)
+    lazy = tiled.predict_grid(grid, chunks=(23, 31))
+    assert lazy["elevation"].chunks is not None
+    out = lazy.compute()
+    np.testing.assert_allclose(out["elevation"], ref["elevation"], atol=1e-9)
+    np.testing.assert_allclose(out["elevation_std"], ref["elevation_std"], atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"tile": 0}, "tile"),
+        ({"tile": 10, "blend": 6}, "blend"),
+        ({"halo": -1}, "halo"),
+        ({"max_points": 2}, "max_points"),
+    ],
+)
+def test_impossible_tile_settings(kwargs, field):
+    with pytest.raises(InputError, match=field):
+        TileSpec(**kwargs)
+
+
+def test_bad_method_and_chunks(setup):
+    grid, samples, _, tiled, kw = setup
+    with pytest.raises(InputError, match="method"):
+        TerrainGP(method="sgpr", **kw).fit(samples)
+    with pytest.raises(InputError, match="chunks"):
+        tiled.predict_grid(grid, chunks=0)
