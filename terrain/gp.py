@@ -26,7 +26,8 @@ from threadpoolctl import threadpool_limits
 from .errors import NotFittedError, NumericalError, bad_input
 from .grid import Grid, check_same_crs
 from .kernels import Kernel, SquaredExponential
-from .linalg import cholesky_jitter, inverse_from_cholesky
+from .likelihood import gaussian_lml
+from .linalg import cholesky_jitter
 from .prior import as_mean_function
 from .samples import ElevationSamples
 from .tiled import TileSpec, predict_tiled
@@ -319,32 +320,9 @@ class TerrainGP:
     # -- Eq 9 -------------------------------------------------------------------------------
     def _lml(self, theta, kernel, X, r, z_var, eval_gradient, strict=False):
         k, nugget = self._unpack(theta, kernel)
-        K = k(X)
-        K[np.diag_indices_from(K)] += z_var + nugget
-        if strict:  # inside the optimizer: no jitter, a failed factor is a bad point
-            from scipy.linalg import LinAlgError, cholesky
-
-            try:
-                L = cholesky(K, lower=True, check_finite=False)
-            except LinAlgError as exc:
-                raise NumericalError("not positive definite") from exc
-        else:
-            L, _ = cholesky_jitter(K, what="TerrainGP kernel matrix")
-        del K
-        alpha = cho_solve((L, True), r, check_finite=False)
-        # Eq 9: -1/2 y^T K^-1 y - 1/2 log|K| - n/2 log 2 pi  (R&W Alg. 2.1 line 8)
-        lml = -0.5 * r @ alpha - np.log(np.diag(L)).sum() - 0.5 * r.size * _LOG_2PI
-        if not eval_gradient:
-            return float(lml)
-        # R&W Eq 5.9: d lml / d theta_j = 1/2 tr((alpha alpha^T - K^-1) dK/dtheta_j)
-        Kinv = inverse_from_cholesky(L)
-        del L
-        grad = []
-        for dK in k.gradients(X):
-            grad.append(0.5 * (alpha @ dK @ alpha - np.einsum("ij,ij->", Kinv, dK)))
-        if self.fit_nugget:  # dK/dlog(nugget) = nugget * I
-            grad.append(0.5 * nugget * (alpha @ alpha - np.trace(Kinv)))
-        return float(lml), np.asarray(grad)
+        return gaussian_lml(
+            k, X, r, z_var + nugget, eval_gradient, strict, nugget if self.fit_nugget else None
+        )
 
     def log_marginal_likelihood(
         self, theta: np.ndarray | None = None, eval_gradient: bool = False
