@@ -153,9 +153,11 @@ class TriangulatedMean:
     """Linear interpolation of a coarse DEM on the Delaunay triangulation of its cell centres.
 
     Inside the convex hull of the centres this is the paper's triangular mesh of satellite
-    values (Section II-E). Outside, it takes the value at the nearest point of the hull
-    boundary (linear along that boundary edge), so it is defined, finite and bounded on all of
-    R^2 and continuous across the hull.
+    values (Section II-E). With ``extrapolate="linear"`` (default) the lattice is first
+    padded by one ring of linearly extrapolated cells, so the mesh covers the DEM's whole
+    footprint and the outer half cell keeps the slope; ``"nearest"`` skips the ring. Beyond
+    the mesh it takes the value at the nearest point of its boundary (linear along that
+    edge), so it is defined, finite and bounded on all of R^2 and continuous everywhere.
 
     Parameters
     ----------
@@ -172,7 +174,15 @@ class TriangulatedMean:
         Elevations at the centres, metres.
     """
 
-    def __init__(self, coarse: xr.DataArray) -> None:
+    def __init__(self, coarse: xr.DataArray, extrapolate: str = "linear") -> None:
+        if extrapolate not in ("linear", "nearest"):
+            raise bad_input(
+                "extrapolate",
+                extrapolate,
+                '"linear" or "nearest"',
+                '"linear" continues the slope over one extra ring of cells',
+            )
+        self.extrapolate = extrapolate
         if not isinstance(coarse, xr.DataArray):
             raise bad_input(
                 "coarse",
@@ -193,8 +203,26 @@ class TriangulatedMean:
             )
         self._interp = self._edges = None
         if min(self.grid.shape) > 1:  # a 2-D lattice: triangulate
-            tri = Delaunay(self.points)
-            self._interp = LinearNDInterpolator(tri, self.values)
+            points, values = self.points, self.values
+            if self.extrapolate == "linear":
+                # One ring of cells extrapolated linearly (odd reflection: 2 v[0] - v[1]), so
+                # the mesh covers the whole DEM footprint with the slope continued: a block-
+                # averaged sloping glacier is not flat in the outer half cell.
+                ring = self.grid
+                padded = Grid(
+                    ring.west - ring.resolution[0],
+                    ring.north + ring.resolution[1],
+                    ring.resolution,
+                    (ring.ny + 2, ring.nx + 2),
+                    ring.crs,
+                )
+                points = padded.xy()
+                values = np.pad(
+                    self.values.reshape(ring.shape), 1, mode="reflect", reflect_type="odd"
+                ).ravel()
+            self._tri_points, self._tri_values = points, values
+            tri = Delaunay(points)
+            self._interp = LinearNDInterpolator(tri, values)
             # Boundary edges of the triangulation: the edge opposite vertex j of simplex s
             # is on the hull when s has no neighbour across it.
             s, j = np.nonzero(tri.neighbors == -1)
@@ -218,13 +246,14 @@ class TriangulatedMean:
     def _nearest_on_hull(self, xy: np.ndarray) -> np.ndarray:
         """Value at the nearest point of the hull boundary, linear along each edge."""
         i, j = self._edges[:, 0], self._edges[:, 1]
-        a, ab = self.points[i], self.points[j] - self.points[i]  # (e, 2)
+        pts, vals = self._tri_points, self._tri_values
+        a, ab = pts[i], pts[j] - pts[i]  # (e, 2)
         rel = xy[:, None, :] - a[None]  # (n, e, 2)
         t = np.clip((rel * ab).sum(-1) / (ab * ab).sum(-1), 0.0, 1.0)  # (n, e)
         d2 = ((rel - t[..., None] * ab) ** 2).sum(-1)
         best = np.argmin(d2, axis=1)
         tb = t[np.arange(len(xy)), best]
-        return self.values[i[best]] + tb * (self.values[j[best]] - self.values[i[best]])
+        return vals[i[best]] + tb * (vals[j[best]] - vals[i[best]])
 
     def __repr__(self) -> str:
         w, s, e, n = self.grid.bounds

@@ -126,7 +126,7 @@ def test_triangulated_reproduces_a_plane_inside_hull() -> None:
 
 
 def test_triangulated_is_finite_and_bounded_everywhere() -> None:
-    mean = TriangulatedMean(coarse_dem(default_site(6.0)))
+    mean = TriangulatedMean(coarse_dem(default_site(6.0)), extrapolate="nearest")
     xy = np.random.default_rng(3).uniform(-1e6, 1e6, (5000, 2)) + [526300.0, 6475300.0]
     z = mean(xy)
     assert z.shape == (5000,) and np.isfinite(z).all()
@@ -152,7 +152,7 @@ def test_triangulated_continuous_across_hull() -> None:
 
 
 def test_triangulated_far_outside_is_nearest_hull_value() -> None:
-    mean = TriangulatedMean(coarse_dem(default_site(6.0)))
+    mean = TriangulatedMean(coarse_dem(default_site(6.0)), extrapolate="nearest")
     (_, y0), (x1, y1) = mean.points.min(0), mean.points.max(0)
     ys = np.linspace(y0, y1, 13)
     far_east = np.column_stack([np.full_like(ys, x1 + 5e4), ys])
@@ -162,6 +162,22 @@ def test_triangulated_far_outside_is_nearest_hull_value() -> None:
     corner = int(np.argmin(np.hypot(mean.points[:, 0] - x1, mean.points[:, 1] - y0)))
     far_se = np.array([[x1 + 1e4, y0 - 3e4]])
     np.testing.assert_allclose(mean(far_se), mean.values[corner], atol=1e-9)
+
+
+def test_linear_extrapolation_continues_a_plane_over_the_footprint() -> None:
+    # A plane's block means equal the plane at the cell centres; odd reflection continues it,
+    # so the padded mesh reproduces the plane over the whole DEM footprint (hand argument).
+    dem = plane_dem()
+    mean = TriangulatedMean(dem)
+    grid = Grid.from_dataarray(dem)
+    w, s, e, n = grid.bounds
+    xy = np.random.default_rng(0).uniform([w, s], [e, n], (500, 2))
+    np.testing.assert_allclose(mean(xy), plane(xy), atol=1e-9)
+    # Beyond the padded ring it is bounded and finite (nearest point of the padded mesh).
+    far = np.array([[w - 1e5, s - 1e5], [e + 1e5, n]])
+    assert np.isfinite(mean(far)).all()
+    with pytest.raises(InputError, match="extrapolate"):
+        TriangulatedMean(dem, extrapolate="cubic")
 
 
 def test_triangulated_attributes_and_repr() -> None:

@@ -9,7 +9,7 @@ import numpy as np
 from terrain.atomic import atomic_path
 from terrain.metrics import calibration_curve
 
-__all__ = ["plot_demo"]
+__all__ = ["plot_demo", "plot_hillshade"]
 
 
 def plot_demo(result, path: str | Path) -> Path:
@@ -97,6 +97,37 @@ def plot_demo(result, path: str | Path) -> Path:
     )
     fig.colorbar(sc, ax=ax, shrink=0.8, label="m")
     fig.suptitle(f"glacimap reconstruct --demo  (seed {result.seed}, {result.samples.n} landmarks)")
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=80, format="png")
+    plt.close(fig)
+    return path
+
+
+def plot_hillshade(ds, path: str | Path, title: str = "") -> Path:
+    """Hillshade of ``elevation`` beside a hillshade of ``elevation_std``: seams between
+    tiles or blocks would show up as straight lines in either (matplotlib LightSource)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LightSource
+
+    dx = float(abs(ds.x[1] - ds.x[0]))
+    ls = LightSource(azdeg=315, altdeg=35)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2), constrained_layout=True)
+    for ax, var, label in zip(
+        axes, ("elevation", "elevation_std"), ("mean elevation", "1-sigma"), strict=True
+    ):
+        z = np.asarray(ds[var].values, dtype=float)
+        exag = 1.0 if var == "elevation" else 50.0  # the std surface is flat: exaggerate
+        ax.imshow(
+            ls.hillshade(z, vert_exag=exag, dx=dx, dy=dx),
+            cmap="gray",
+            extent=(0, z.shape[1] * dx, 0, z.shape[0] * dx),
+        )
+        ax.set(title=f"hillshade of the {label}", xlabel="m", ylabel="m")
+    fig.suptitle(title)
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=80, format="png")

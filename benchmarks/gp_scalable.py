@@ -1,0 +1,317 @@
+"""Scalable GP (issue 3): fidelity to the exact GP, calibration, speed and memory, Dask,
+and peers (scipy Delaunay, PyKrige moving-window kriging), all in one run.
+
+    python benchmarks/gp_scalable.py --out benchmarks/results/gp_scalable.json
+    python benchmarks/gp_scalable.py --cases fidelity calibration   # a subset
+
+Every case runs in its own process (peak RSS is its own). Data: the default site
+(600 m, 25 m relief, dunes, crevasses, a melt pool) or larger random glaciers, landmarks
+beside a lawnmower path (`terrain.sample_along_path`), the 8 x 8 satellite prior.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _harness import in_subprocess, table, write_json  # noqa: E402
+
+KERNEL = (0.18, 15.0)  # Matern 2.5 start: variance m^2, length scale m
+
+
+def _site(n: int, resolution: float, swaths: int = 4, seed: int = 0):
+    from terrain import Grid, TriangulatedMean, coarse_dem, default_site, sample_along_path
+    from toolkit.demo import demo_path
+
+    truth = default_site(resolution)
+    grid = Grid.from_dataarray(truth)
+    samples, _ = sample_along_path(truth, demo_path(grid, swaths), n, seed=seed)
+    return truth, grid, samples, TriangulatedMean(coarse_dem(truth))
+
+
+def _scores(pred, std, truth, samples, grid) -> dict:
+    from scipy.spatial import cKDTree
+
+    from terrain import evaluate
+
+    far = cKDTree(samples.xy).query(grid.xy())[0].reshape(grid.shape) > 20.0
+    out = {k: v for k, v in evaluate(pred, truth, std).items()}
+    f = evaluate(pred[far], truth[far], std[far])
+    out.update(
+        far_fraction=float(far.mean()),
+        far_coverage_95=f["coverage_95"],
+        far_coverage_68=f["coverage_68"],
+        far_z_std=f["z_std"],
+    )
+    return out
+
+
+def case_fidelity(n: int) -> dict:
+    from terrain import Matern, TerrainGP
+
+    truth, grid, samples, prior = _site(n, 4.0)
+    fit = TerrainGP(
+        Matern(*KERNEL, nu=2.5), mean=prior, n_restarts=0, max_fit_samples=1000, method="tiled"
+    ).fit(samples)
+    kw = dict(
+        kernel=fit.kernel_, mean=prior, nugget=fit.nugget_, nugget_bounds="fixed", optimize=False
+    )
+    t0 = time.perf_counter()
+    m1, s1 = TerrainGP(method="exact", **kw).fit(samples).predict(grid.xy(), return_std=True)
+    t1 = time.perf_counter()
+    m2, s2 = TerrainGP(method="tiled", **kw).fit(samples).predict(grid.xy(), return_std=True)
+    t2 = time.perf_counter()
+    tv = truth.values.ravel()
+    r1, r2 = float(np.sqrt(np.mean((m1 - tv) ** 2))), float(np.sqrt(np.mean((m2 - tv) ** 2)))
+    return {
+        "case": f"fidelity n={n}",
+        "n": n,
+        "rmse_exact": r1,
+        "rmse_tiled": r2,
+        "rmse_ratio": r2 / r1,
+        "median_rel_std_diff": float(np.median(np.abs(s2 - s1) / s1)),
+        "exact_s": t1 - t0,
+        "tiled_s": t2 - t1,
+    }
+
+
+def case_map(n: int, micro: bool, resolution: float = 1.0, size: float = 600.0) -> dict:
+    from terrain import (
+        Grid,
+        Matern,
+        TerrainGP,
+        TriangulatedMean,
+        coarse_dem,
+        random_terrain,
+        sample_along_path,
+    )
+    from toolkit.demo import demo_path
+
+    if size == 600.0:
+        truth, grid, samples, prior = _site(n, resolution)
+    else:
+        grid = Grid.from_bounds((0, 0, size, size), resolution)
+        truth = random_terrain(grid, relief=25.0, seed=3, features=True)
+        samples, _ = sample_along_path(truth, demo_path(grid, int(size // 150)), n, seed=0)
+        prior = TriangulatedMean(coarse_dem(truth))
+    kernel = Matern(*KERNEL, nu=2.5)
+    if micro:  # optional short-scale micro-relief term
+        kernel = kernel + Matern(0.01, 3.0, nu=1.5)
+    t0 = time.perf_counter()
+    gp = TerrainGP(kernel, mean=prior, n_restarts=0, max_fit_samples=1000).fit(samples)
+    t1 = time.perf_counter()
+    ds = gp.predict_grid(grid)
+    t2 = time.perf_counter()
+    out = _scores(ds.elevation.values, ds.elevation_std.values, truth.values, samples, grid)
+    out.update(
+        case=f"{n // 1000}k -> {grid.ny}x{grid.nx}" + (" +micro" if micro else ""),
+        n=n,
+        fit_s=t1 - t0,
+        predict_s=t2 - t1,
+        total_s=t2 - t0,
+        method=gp.method_,
+        kernel=repr(gp.kernel_),
+        nugget=gp.nugget_,
+    )
+    return out
+
+
+def case_dask(size: float = 5000.0, n: int = 200_000, chunks: int = 1000) -> dict:
+    """A 5 km x 5 km, 1 m map through Dask; only block reductions are kept in memory."""
+    import dask
+
+    from terrain import ElevationSamples, Grid, Matern, TerrainGP, terrain_function
+    from toolkit.demo import demo_path
+
+    grid = Grid.from_bounds((0, 0, size, size), 1.0)
+    surface = terrain_function(grid, relief=60.0, seed=9, features=True)
+    path = demo_path(Grid.from_bounds((0, 0, size, size), 50.0), 3)
+    rng = np.random.default_rng(0)
+    s = rng.uniform(0, 1, n)
+    seg = np.repeat(np.arange(len(path) - 1), 1)
+    idx = rng.integers(0, len(seg), n)
+    base = path[idx] + s[:, None] * (path[idx + 1] - path[idx])
+    xy = np.clip(base + rng.normal(0, 20.0, (n, 2)), 1, size - 1)
+    z = surface(xy) + rng.normal(0, 0.15, n)
+    samples = ElevationSamples(xy, z, 0.15**2, crs=grid.crs, duplicates="average")
+    t0 = time.perf_counter()
+    gp = TerrainGP(Matern(*KERNEL, nu=2.5), n_restarts=0, max_fit_samples=1000).fit(samples)
+    ds = gp.predict_grid(grid, chunks=chunks)
+    with dask.config.set(scheduler="threads", num_workers=1):
+        mean_elev, max_std = dask.compute(ds.elevation.mean(), ds.elevation_std.max())
+    t1 = time.perf_counter()
+    return {
+        "case": f"dask {int(size)}x{int(size)} m @1 m",
+        "n": n,
+        "cells": grid.size,
+        "total_s": t1 - t0,
+        "chunks": chunks,
+        "mean_elevation": float(mean_elev),
+        "max_std": float(max_std),
+        "method": gp.method_,
+    }
+
+
+def case_peers(n: int = 10_000, n_query: int = 10_000) -> dict:
+    """Identical data and cells: TerrainGP vs scipy Delaunay vs PyKrige moving window."""
+    from pykrige.ok import OrdinaryKriging
+    from scipy.interpolate import LinearNDInterpolator
+
+    from terrain import Matern, TerrainGP
+
+    truth, grid, samples, prior = _site(n, 1.0)
+    rng = np.random.default_rng(1)
+    cells = rng.choice(grid.size, n_query, replace=False)
+    q = grid.xy()[cells]
+    tv = truth.values.ravel()[cells]
+    t0 = time.perf_counter()
+    gp = TerrainGP(Matern(*KERNEL, nu=2.5), mean=prior, n_restarts=0, max_fit_samples=1000)
+    m_gp = gp.fit(samples).predict(q)
+    t1 = time.perf_counter()
+    off = samples.xy.mean(axis=0)
+    m_dl = LinearNDInterpolator(samples.xy - off, samples.z)(q - off)
+    t2 = time.perf_counter()
+    ok = OrdinaryKriging(
+        samples.xy[:, 0] - off[0],
+        samples.xy[:, 1] - off[1],
+        samples.z,
+        variogram_model="spherical",
+        nlags=30,
+    )
+    m_ok, _ = ok.execute(
+        "points", q[:, 0] - off[0], q[:, 1] - off[1], backend="loop", n_closest_points=64
+    )
+    t3 = time.perf_counter()
+    hull = np.isfinite(m_dl)
+
+    def r(m, sel=slice(None)):
+        return float(np.sqrt(np.mean((np.asarray(m)[sel] - tv[sel]) ** 2)))
+
+    return {
+        "case": f"peers n={n}, {n_query} cells",
+        "n": n,
+        "rmse_gp": r(m_gp),
+        "rmse_gp_on_hull": r(m_gp, hull),
+        "rmse_delaunay_hull": r(m_dl, hull),
+        "rmse_pykrige": r(m_ok),
+        "gp_s": t1 - t0,
+        "delaunay_s": t2 - t1,
+        "pykrige_s": t3 - t2,
+        "gp_over_delaunay_rmse": r(m_gp, hull) / r(m_dl, hull),
+        "gp_over_pykrige_rmse": r(m_gp) / r(m_ok),
+        "gp_over_pykrige_time": (t1 - t0) / (t3 - t2),
+    }
+
+
+CASES = {
+    "fidelity": [(case_fidelity, (2000,)), (case_fidelity, (8000,))],
+    "calibration": [(case_map, (50_000, False)), (case_map, (50_000, True))],
+    "large": [(case_map, (500_000, False, 1.0, 1200.0))],
+    "dask": [(case_dask, ())],
+    "peers": [(case_peers, ())],
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/gp_scalable.json"))
+    args = ap.parse_args(argv)
+    results: dict[str, list[dict]] = {}
+    for name in args.cases:
+        results[name] = []
+        for func, fargs in CASES[name]:
+            row = in_subprocess(func, *fargs)
+            results[name].append(row)
+            print(
+                f"[{name}] {row['case']}: {row['wall_s']:.1f} s, peak {row['peak_rss_mb']:.0f} MB",
+                flush=True,
+            )
+    if "fidelity" in results:
+        print(
+            "\nFidelity: tiled vs exact GP, same hyperparameters (targets: RMSE within 2 %,"
+            " median relative std difference <= 5 %)"
+        )
+        print(
+            table(
+                results["fidelity"],
+                [
+                    ("n", "n", "d"),
+                    ("rmse_exact", "RMSE exact", ".4f"),
+                    ("rmse_tiled", "RMSE tiled", ".4f"),
+                    ("rmse_ratio", "ratio", ".4f"),
+                    ("median_rel_std_diff", "med rel dstd", ".1e"),
+                    ("exact_s", "exact s", ".1f"),
+                    ("tiled_s", "tiled s", ".1f"),
+                ],
+            )
+        )
+    maps = results.get("calibration", []) + results.get("large", [])
+    if maps:
+        print(
+            "\nMaps: calibration (targets 95 %: 93-97, 68 %: 64-72, z spread 0.9-1.1; also"
+            " > 20 m from data), speed (50k <= 30 s, 2 GB; 500k <= 300 s, 4 GB)"
+        )
+        print(
+            table(
+                maps,
+                [
+                    ("case", "case", ""),
+                    ("rmse", "RMSE", ".3f"),
+                    ("coverage_95", "in 95%", ".3f"),
+                    ("coverage_68", "in 68%", ".3f"),
+                    ("z_std", "z spread", ".2f"),
+                    ("far_coverage_95", "far 95%", ".3f"),
+                    ("far_coverage_68", "far 68%", ".3f"),
+                    ("fit_s", "fit s", ".1f"),
+                    ("predict_s", "pred s", ".1f"),
+                    ("wall_s", "wall s", ".1f"),
+                    ("peak_rss_mb", "peak MB", ".0f"),
+                ],
+            )
+        )
+    if "dask" in results:
+        print("\nDask: whole map computed block by block (only reductions kept)")
+        print(
+            table(
+                results["dask"],
+                [
+                    ("case", "case", ""),
+                    ("cells", "cells", ",d"),
+                    ("n", "samples", ",d"),
+                    ("wall_s", "wall s", ".1f"),
+                    ("peak_rss_mb", "peak MB", ".0f"),
+                ],
+            )
+        )
+    if "peers" in results:
+        print(
+            "\nPeers on identical data and cells (targets: RMSE <= 0.6 x Delaunay on its hull;"
+            " better RMSE and shorter time than PyKrige)"
+        )
+        print(
+            table(
+                results["peers"],
+                [
+                    ("rmse_gp", "GP RMSE", ".3f"),
+                    ("rmse_delaunay_hull", "Delaunay", ".3f"),
+                    ("gp_over_delaunay_rmse", "GP/Del", ".2f"),
+                    ("rmse_pykrige", "PyKrige", ".3f"),
+                    ("gp_over_pykrige_rmse", "GP/PyK", ".2f"),
+                    ("gp_s", "GP s", ".1f"),
+                    ("pykrige_s", "PyKrige s", ".1f"),
+                    ("gp_over_pykrige_time", "time ratio", ".3f"),
+                ],
+            )
+        )
+    write_json(args.out, {"benchmark": "gp_scalable", "results": results})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
