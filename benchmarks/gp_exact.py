@@ -10,15 +10,14 @@ process so its peak resident memory (ru_maxrss) is its own. Prints a table and w
 from __future__ import annotations
 
 import argparse
-import json
-import multiprocessing as mp
-import platform
-import resource
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _harness import in_subprocess, write_json  # noqa: E402
 
 VARIANCE, LENGTHSCALE, NOISE = 20.0, 25.0, 0.2**2  # m^2, m, m^2 (fixed, shared by both)
 
@@ -36,10 +35,9 @@ def _data(n: int, seed: int):
     return grid, xy, z - z.mean()
 
 
-def _case(impl: str, n: int, seed: int, queue) -> None:
+def _case(impl: str, n: int, seed: int) -> dict:
     grid, xy, z = _data(n, seed)
     q = grid.xy()
-    base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     t0 = time.perf_counter()
     if impl == "glacimap":
         from terrain import ElevationSamples
@@ -52,9 +50,8 @@ def _case(impl: str, n: int, seed: int, queue) -> None:
             nugget=NOISE,
             nugget_bounds="fixed",
             optimize=False,
+            method="exact",
         ).fit(ElevationSamples(xy, z))
-        t1 = time.perf_counter()
-        mean, std = gp.predict(q, return_std=True)
     else:
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import RBF, ConstantKernel
@@ -62,33 +59,18 @@ def _case(impl: str, n: int, seed: int, queue) -> None:
         gp = GaussianProcessRegressor(
             ConstantKernel(VARIANCE) * RBF(LENGTHSCALE), alpha=NOISE, optimizer=None
         ).fit(xy, z)
-        t1 = time.perf_counter()
-        mean, std = gp.predict(q, return_std=True)
+    t1 = time.perf_counter()
+    mean, std = gp.predict(q, return_std=True)
     t2 = time.perf_counter()
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    queue.put(
-        {
-            "impl": impl,
-            "n": n,
-            "fit_s": t1 - t0,
-            "predict_s": t2 - t1,
-            "total_s": t2 - t0,
-            "peak_rss_mb": peak / 1024,
-            "base_rss_mb": base_rss / 1024,
-            "mean": mean,
-            "std": std,
-        }
-    )
-
-
-def run_case(impl: str, n: int, seed: int) -> dict:
-    ctx = mp.get_context("spawn")
-    queue = ctx.Queue()
-    proc = ctx.Process(target=_case, args=(impl, n, seed, queue))
-    proc.start()
-    out = queue.get()
-    proc.join()
-    return out
+    return {
+        "impl": impl,
+        "n": n,
+        "fit_s": t1 - t0,
+        "predict_s": t2 - t1,
+        "total_s": t2 - t0,
+        "mean": mean,
+        "std": std,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -105,8 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     print("Exact GP onto a 300 x 300 grid (mean + std), fixed hyperparameters")
     print(head)
     for n in args.sizes:
-        ours = run_case("glacimap", n, args.seed)
-        ref = run_case("sklearn", n, args.seed)
+        ours = in_subprocess(_case, "glacimap", n, args.seed)
+        ref = in_subprocess(_case, "sklearn", n, args.seed)
         dmean = float(np.max(np.abs(ours.pop("mean") - ref.pop("mean"))))
         dstd = float(np.max(np.abs(ours.pop("std") - ref.pop("std"))))
         ratio_t = ours["total_s"] / ref["total_s"]
@@ -131,23 +113,18 @@ def main(argv: list[str] | None = None) -> int:
                 "max_abs_std_diff_m": dstd,
             }
         )
-    result = {
-        "benchmark": "gp_exact",
-        "grid": [300, 300],
-        "seed": args.seed,
-        "hyperparameters": {"variance": VARIANCE, "lengthscale": LENGTHSCALE, "noise": NOISE},
-        "python": sys.version.split()[0],
-        "machine": platform.machine(),
-        "cpu_count": mp.cpu_count(),
-        "rows": rows,
-        "notes": "time ratio = glacimap / scikit-learn (< 1: glacimap faster); peak RSS per "
-        "process includes the interpreter and libraries (base_rss_mb).",
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(args.out)
-    print(f"wrote {args.out}")
+    write_json(
+        args.out,
+        {
+            "benchmark": "gp_exact",
+            "grid": [300, 300],
+            "seed": args.seed,
+            "hyperparameters": {"variance": VARIANCE, "lengthscale": LENGTHSCALE, "noise": NOISE},
+            "rows": rows,
+            "notes": "time ratio = glacimap / scikit-learn (< 1: glacimap faster); peak RSS per "
+            "process includes the interpreter, libraries and the synthetic data.",
+        },
+    )
     return 0
 
 
