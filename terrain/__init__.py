@@ -13,6 +13,7 @@ from .errors import (
     JitterWarning,
     NotFittedError,
     NumericalError,
+    TilingWarning,
 )
 from .gp import TerrainGP
 from .grid import DEFAULT_CRS, Grid
@@ -52,6 +53,7 @@ __all__ = [
     "SumKernel",
     "TerrainFeatures",
     "TerrainGP",
+    "TilingWarning",
     "TriangulatedMean",
     "as_mean_function",
     "coarse_dem",

@@ -12,6 +12,7 @@ import numpy as np
 
 from .errors import bad_input
 from .grid import Grid
+from .product import terrain_dataset
 
 __all__ = ["predict_grid_dask"]
 
@@ -42,7 +43,6 @@ def predict_grid_dask(gp, grid: Grid, chunks, include_nugget: bool = False):
         Rows and columns per block.
     """
     import dask.array as da
-    import xarray as xr
 
     rows, cols = (int(c) for c in np.broadcast_to(np.asarray(chunks), (2,)))
     if rows < 1 or cols < 1:
@@ -58,19 +58,4 @@ def predict_grid_dask(gp, grid: Grid, chunks, include_nugget: bool = False):
         chunks=template.chunks,
         name="glacimap-gp-block",
     )
-    return xr.Dataset(
-        {
-            "elevation": (
-                ("y", "x"),
-                both[0],
-                {"units": "m", "long_name": "posterior mean elevation"},
-            ),
-            "elevation_std": (
-                ("y", "x"),
-                both[1],
-                {"units": "m", "long_name": "posterior 1-sigma of elevation"},
-            ),
-        },
-        coords=grid.coords(),
-        attrs={**grid.attrs(), **gp.provenance(), "chunks": [rows, cols]},
-    )
+    return terrain_dataset(grid, both[0], both[1], {**gp.provenance(), "chunks": [rows, cols]})

@@ -17,6 +17,7 @@ __all__ = [
     "JitterWarning",
     "NotFittedError",
     "NumericalError",
+    "TilingWarning",
     "bad_input",
 ]
 
@@ -47,6 +48,10 @@ class NumericalError(GlacimapError, ArithmeticError):
 
 class JitterWarning(RuntimeWarning):
     """A kernel matrix needed diagonal jitter to factor; the message says how much."""
+
+
+class TilingWarning(RuntimeWarning):
+    """A tiled GP cannot carry a long-scale kernel component across gaps wider than its halo."""
 
 
 def _short(value: Any, limit: int = 80) -> str:

@@ -1,4 +1,4 @@
-"""TerrainGP: exact Gaussian-process terrain reconstruction with per-point noise and a prior mean.
+"""TerrainGP: Gaussian-process terrain reconstruction with per-point noise and a prior mean.
 
 Model (paper Section II): ``z_i = m(x_i) + f(x_i) + e_i`` with ``f ~ GP(0, k)`` (Eq 1 or a
 Matérn kernel), ``e_i ~ N(0, sigma_i^2 + nugget)`` (Eq 6: each sample's own elevation variance,
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from typing import Any
 
 import numpy as np
@@ -23,24 +24,19 @@ from scipy.linalg import cho_solve, solve_triangular
 from scipy.optimize import minimize
 from threadpoolctl import threadpool_limits
 
-from .errors import NotFittedError, NumericalError, bad_input
+from .errors import NotFittedError, NumericalError, TilingWarning, bad_input
 from .grid import Grid, check_same_crs
 from .kernels import Kernel, SquaredExponential
 from .likelihood import gaussian_lml
 from .linalg import cholesky_jitter
 from .prior import as_mean_function
+from .product import terrain_dataset
 from .samples import ElevationSamples
-from .tiled import TileSpec, predict_tiled
+from .tiled import TileSpec, long_scale_part, predict_tiled, shortest_lengthscale
 
 __all__ = ["TerrainGP"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
-
-
-def _shortest_lengthscale(kernel) -> float:
-    """The shortest length scale of a kernel or of any part of a sum, m."""
-    parts = getattr(kernel, "parts", (kernel,))
-    return float(min(np.min(p.lengths) for p in parts))
 
 
 def _version() -> str:
@@ -82,6 +78,11 @@ class TerrainGP:
     seed : int
         Seed of the one ``numpy.random.Generator`` used (restarts, fit subset); recorded in
         every product.
+    method : {"auto", "exact", "tiled"}
+        ``"auto"``: exact up to ``exact_max_samples`` samples (up to 3x that when a large
+        long-scale kernel part could not be tiled), tiled above (:mod:`terrain.tiled`).
+    tiles : TileSpec, optional
+        Tile geometry of the tiled GP; default scaled to the shortest length scale.
 
     Attributes
     ----------
@@ -238,13 +239,28 @@ class TerrainGP:
                 )
             kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
         self.kernel_, self.nugget_ = kernel, nugget
+        tiles = self.tiles or TileSpec.for_lengthscale(shortest_lengthscale(kernel))
+        long_part = long_scale_part(kernel, tiles.halo)
         exact = self.method == "exact" or (
-            self.method == "auto" and samples.n <= self.exact_max_samples
+            self.method == "auto"
+            and (
+                samples.n <= self.exact_max_samples
+                or (long_part is not None and samples.n <= 3 * self.exact_max_samples)
+            )
         )
         self.method_ = "exact" if exact else "tiled"
         if not exact:
+            if long_part is not None:
+                warnings.warn(
+                    f"the tiled GP sees data only within {tiles.halo:.0f} m of a tile, but the "
+                    f"kernel part {long_part!r} carries a large variance at a longer scale: far "
+                    "from data it will revert to the prior mean. Use a prior mean that holds the "
+                    "long scale (a satellite DEM), method='exact', or TileSpec(halo=...).",
+                    TilingWarning,
+                    stacklevel=2,
+                )
             # Tiled: no global factor. Eq 9 is reported on the fit subset (exact there).
-            self.tiles_ = self.tiles or TileSpec.for_lengthscale(_shortest_lengthscale(kernel))
+            self.tiles_ = tiles
             idx = (
                 self.fit_index_
                 if self.fit_index_.size < samples.n
@@ -437,8 +453,6 @@ class TerrainGP:
             ``elevation`` and ``elevation_std`` (metres) on dims ``(y, x)``, with CRS and
             provenance (method, kernel, hyperparameters, seed) in ``attrs``.
         """
-        import xarray as xr
-
         self._check_fitted()
         check_same_crs(self.crs_, grid.crs, "samples", "grid")
         if chunks is not None:
@@ -446,23 +460,9 @@ class TerrainGP:
 
             return predict_grid_dask(self, grid, chunks, include_nugget)
         mean, std = self.predict(grid.xy(), return_std=True, include_nugget=include_nugget)
-        ds = xr.Dataset(
-            {
-                "elevation": (
-                    ("y", "x"),
-                    mean.reshape(grid.shape),
-                    {"units": "m", "long_name": "posterior mean elevation"},
-                ),
-                "elevation_std": (
-                    ("y", "x"),
-                    std.reshape(grid.shape),
-                    {"units": "m", "long_name": "posterior 1-sigma of elevation"},
-                ),
-            },
-            coords=grid.coords(),
-            attrs={**grid.attrs(), **self.provenance()},
+        return terrain_dataset(
+            grid, mean.reshape(grid.shape), std.reshape(grid.shape), self.provenance()
         )
-        return ds
 
     def provenance(self) -> dict[str, Any]:
         """Flat, netCDF-safe description of how this map was made."""

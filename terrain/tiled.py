@@ -26,7 +26,7 @@ from scipy.linalg import cho_solve, solve_triangular
 from .errors import bad_input
 from .linalg import cholesky_jitter
 
-__all__ = ["TileSpec", "predict_tiled"]
+__all__ = ["TileSpec", "long_scale_part", "predict_tiled", "shortest_lengthscale"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +74,23 @@ class TileSpec:
         ls = float(lengthscale)
         tile = float(np.clip(2.0 * ls, 16.0, 64.0))
         return cls(tile=tile, blend=tile / 8.0, halo=float(np.clip(3.0 * ls, 10.0, 150.0)))
+
+
+def long_scale_part(kernel, halo: float):
+    """The kernel part (if any) whose length scale exceeds ``halo`` while its variance is at
+    least a tenth of the shortest-scale part's: what a tiled GP cannot represent."""
+    parts = getattr(kernel, "parts", (kernel,))
+    short = min(parts, key=lambda p: float(np.min(p.lengths)))
+    for p in parts:
+        if float(np.min(p.lengths)) > halo and p.variance >= 0.1 * short.variance:
+            return p
+    return None
+
+
+def shortest_lengthscale(kernel) -> float:
+    """The shortest length scale of a kernel or of any part of a sum, m."""
+    parts = getattr(kernel, "parts", (kernel,))
+    return float(min(np.min(p.lengths) for p in parts))
 
 
 def _smoothstep(t: np.ndarray) -> np.ndarray:

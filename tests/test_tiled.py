@@ -108,3 +108,14 @@ def test_bad_method_and_chunks(setup):
         TerrainGP(method="sgpr", **kw).fit(samples)
     with pytest.raises(InputError, match="chunks"):
         tiled.predict_grid(grid, chunks=0)
+
+
+def test_long_scale_kernel_prefers_exact_or_warns(setup):
+    from terrain import TilingWarning
+
+    _, samples, _, _, kw = setup
+    kw = {**kw, "kernel": Matern(50.0, 400.0, nu=2.5) + Matern(0.3, 8.0, nu=2.5)}
+    # auto: a significant 400 m part cannot be tiled with a ~24 m halo -> exact up to 3x
+    assert TerrainGP(exact_max_samples=1000, **kw).fit(samples).method_ == "exact"
+    with pytest.warns(TilingWarning, match="long"):
+        TerrainGP(exact_max_samples=400, **kw).fit(samples)
