@@ -28,10 +28,12 @@ from .metrics import (
     rmse,
     standardized_error_stats,
 )
+from .posterior import HyperPosterior, ShortChainWarning, sample_hyperparameters
 from .prior import ConstantMean, TriangulatedMean, as_mean_function, coarse_dem
 from .samples import ElevationSamples
 from .sampling import LandmarkNoise, sample_along_path, sample_dem
 from .synthetic import TerrainFeatures, default_site, random_terrain, terrain_function
+from .tiled import TileSpec
 from .tuning import PaperTuning, tune_paper_grid
 
 __all__ = [
@@ -42,6 +44,7 @@ __all__ = [
     "ElevationSamples",
     "GlacimapError",
     "Grid",
+    "HyperPosterior",
     "InputError",
     "JitterWarning",
     "LandmarkNoise",
@@ -49,10 +52,12 @@ __all__ = [
     "NotFittedError",
     "NumericalError",
     "PaperTuning",
+    "ShortChainWarning",
     "SquaredExponential",
     "SumKernel",
     "TerrainFeatures",
     "TerrainGP",
+    "TileSpec",
     "TilingWarning",
     "TriangulatedMean",
     "as_mean_function",
@@ -69,6 +74,7 @@ __all__ = [
     "rmse",
     "sample_along_path",
     "sample_dem",
+    "sample_hyperparameters",
     "standardized_error_stats",
     "terrain_function",
     "tune_paper_grid",

@@ -8,7 +8,8 @@ posterior draws, so the map's uncertainty includes the hyperparameters' uncertai
 
 Sampled coordinates and weakly informative priors (each a Normal on the sampled coordinate;
 ``r = z - m(x)`` on the fit subset, or ``z - mean(z)`` without a mean function; ``E`` the
-largest side of the data's bounding box):
+largest side of the data's bounding box; the offset centres on the number when ``mean`` is
+one):
 
 ================  ==========  ====================================  =========================
 parameter         sampled as  prior centre                          prior sd
@@ -16,7 +17,7 @@ parameter         sampled as  prior centre                          prior sd
 ``variance``      log(m^2)    log var(r)                            2
 ``lengthscale*``  log(m)      log(E / 10)                           1.5
 ``nugget``        log(m^2)    log(median z_var + 1e-4)              3
-``offset`` (a)    m           mean(r) (or the number given as mean) abs(mean m) + 10 std(z) + 1
+``offset`` (a)    m           mean(z - m(x)), mean(z), or the number abs(mean m) + 10 std(z) + 1
 ``scale`` (b)     1           1 (only with a mean function)         0.5
 ================  ==========  ====================================  =========================
 
@@ -38,7 +39,7 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 from scipy.optimize import minimize
 
 from .errors import bad_input
-from .prior import ConstantMean, as_mean_function
+from .prior import as_mean_function
 from .samples import ElevationSamples
 
 __all__ = ["HyperPosterior", "ShortChainWarning", "mixture_mean_std", "sample_hyperparameters"]
@@ -65,7 +66,7 @@ class _AffineMean:
         return self.a + self.b * np.asarray(self.m(xy), dtype=float)
 
     def __repr__(self) -> str:
-        return f"{self.a:.4g} + {self.b:.4g} * {self.m!r}" if self.m else f"{self.a:.4g}"
+        return f"{self.a:.4g}" if self.m is None else f"{self.a:.4g} + {self.b:.4g} * {self.m!r}"
 
 
 def mixture_mean_std(means: np.ndarray, stds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -144,19 +145,12 @@ class HyperPosterior:
         Kernel parameter names, then ``"nugget"``, ``"offset"`` and (with a mean) ``"scale"``.
     log_params : ndarray of bool, shape (p,)
         Which coordinates are logs of the natural value.
-    tau : ndarray of shape (p,)
-        Integrated autocorrelation time per parameter, in steps.
-    ess : float
-        Effective sample size ``n_walkers * n_kept_steps / max(tau)``.
-    acceptance_fraction : ndarray of shape (n_walkers,)
-    seconds : float
-        Wall time of the whole call (MAP search and sampling), s.
-    seed : int
-    kernel, mean_function
-        The kernel template (``with_theta`` rebuilds it) and the fitted base mean ``m`` (None:
-        offset only).
-    priors : dict
-        ``name -> (centre, sd)`` actually used, sampled coordinates.
+    tau, ess : ndarray of shape (p,), float
+        Integrated autocorrelation time per parameter (steps); ``n_walkers * n_kept / max tau``.
+    acceptance_fraction, seconds, seed : ndarray (n_walkers,), float (s, whole call), int
+    kernel, mean_function, priors
+        Kernel template (``with_theta``), fitted base mean ``m`` (None: offset only), and the
+        priors used, ``name -> (centre, sd)`` in sampled coordinates.
     n_fit_samples, burn : int
         Samples in the likelihood subset; steps discarded as burn-in.
     """
@@ -178,7 +172,9 @@ class HyperPosterior:
 
     def natural(self, theta: np.ndarray) -> np.ndarray:
         """Sampled coordinates (..., p) -> natural units (m^2, m, m^2, m, 1)."""
-        return np.where(self.log_params, np.exp(theta), theta)
+        out = np.array(theta, dtype=float)
+        out[..., self.log_params] = np.exp(out[..., self.log_params])
+        return out
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: per parameter the median and 68 % interval (16th, 84th percentiles)."""
@@ -228,22 +224,11 @@ class HyperPosterior:
     def predict_grid(self, samples: ElevationSamples, grid, n_draws: int = 16, **gp_kwargs: Any):
         """Posterior-averaged map: a GP per draw on all samples, combined as a mixture.
 
-        Parameters
-        ----------
-        samples : ElevationSamples
-            All samples (not only the likelihood subset).
-        grid : Grid
-            Cells to predict.
-        n_draws : int
-            Posterior draws (:meth:`draws` with this posterior's seed).
-        **gp_kwargs
-            Passed on to :class:`TerrainGP` (e.g. ``method="exact"``, ``chunk_size``).
-
-        Returns
-        -------
-        xarray.Dataset
-            ``elevation`` (mixture mean) and ``elevation_std`` (law of total variance),
-            metres, dims (y, x); ``attrs`` record method, n_draws, seed and the summary.
+        ``samples``: all of them (not only the likelihood subset); ``grid``: cells to predict;
+        ``n_draws``: posterior draws (:meth:`draws`, this posterior's seed); ``gp_kwargs`` go
+        to :class:`TerrainGP` (e.g. ``method="exact"``). Returns an ``xarray.Dataset``:
+        ``elevation`` (mixture mean) and ``elevation_std`` (law of total variance), metres,
+        dims (y, x); ``attrs`` record method, n_draws, seed and the posterior summary.
         """
         import json
 
@@ -254,9 +239,14 @@ class HyperPosterior:
             stds.append(ds["elevation_std"].values)
         mean, std = mixture_mean_std(np.stack(means), np.stack(stds))
         ds["elevation"].values, ds["elevation_std"].values = mean, std
+        for key in ("log_marginal_likelihood", "jitter"):  # the last draw's, not the mixture's
+            ds.attrs.pop(key, None)
         ds.attrs.update(
             method="posterior-averaged GP (emcee)",
+            kernel=f"{self.kernel!r} (initial; hyperparameters drawn)",
+            mean_function="a" if self.mean_function is None else f"a + b * {self.mean_function!r}",
             n_draws=int(n_draws),
+            n_fit_samples=int(self.n_fit_samples),  # the likelihood subset of the posterior
             seed=int(self.seed),
             hyperparameters=json.dumps(self.summary()["parameters"]),
         )
@@ -277,7 +267,8 @@ def _priors(kernel, X, z, zv, mX, has_b, override) -> dict[str, tuple[float, flo
             out[name] = (float(np.log(extent / 10.0)), 1.5)
     out["nugget"] = (float(np.log(np.median(zv) + 1e-4)), 3.0)
     m_abs = abs(float(np.mean(mX))) if mX is not None else 0.0
-    out["offset"] = (float(np.mean(r)), m_abs + 10.0 * float(np.std(z)) + 1.0)
+    a0 = float(np.mean(z - mX)) if mX is not None else float(np.mean(z))
+    out["offset"] = (a0, m_abs + 10.0 * float(np.std(z)) + 1.0)
     if has_b:
         out["scale"] = (1.0, 0.5)
     for name, spec in (override or {}).items():
@@ -322,7 +313,7 @@ def sample_hyperparameters(
         Steps per walker, including ``burn``.
     burn : int, optional
         Steps discarded at the start; default ``n_steps // 4``. Walkers start in a small
-        seeded ball around the maximum a posteriori point found with L-BFGS-B.
+        seeded ball (0.01 prior sd) around the maximum a posteriori point (Powell search).
     max_samples : int
         Size cap of the likelihood subset (exact Eq 9 costs O(max_samples^3) per step).
     bin_size : float, optional
@@ -354,29 +345,30 @@ def sample_hyperparameters(
 
     import emcee
 
-    if not isinstance(samples, ElevationSamples) or samples.n < 3:
-        raise bad_input("samples", samples, "ElevationSamples with >= 3 samples", "")
-    if int(max_samples) < 3:
-        raise bad_input("max_samples", max_samples, ">= 3", "e.g. max_samples=500")
-    if int(n_steps) < 1:
-        raise bad_input("n_steps", n_steps, ">= 1 step per walker", "e.g. n_steps=2000")
     burn = int(n_steps) // 4 if burn is None else int(burn)
-    if not 0 <= burn < int(n_steps):
-        raise bad_input("burn", burn, f"0 <= burn < n_steps ({n_steps})", "")
-    if bin_size is not None and not (np.isfinite(bin_size) and bin_size > 0):
-        raise bad_input("bin_size", bin_size, "a positive bin side in metres or None", "")
+    for field_, value, ok, expected in (
+        ("samples", samples, isinstance(samples, ElevationSamples) and samples.n >= 3,
+         "ElevationSamples with >= 3 samples"),
+        ("max_samples", max_samples, int(max_samples) >= 3, ">= 3, e.g. 500"),
+        ("n_steps", n_steps, int(n_steps) >= 1, ">= 1 step per walker, e.g. 2000"),
+        ("burn", burn, 0 <= burn < int(n_steps), f"0 <= burn < n_steps ({n_steps})"),
+        ("bin_size", bin_size, bin_size is None or (np.isfinite(bin_size) and bin_size > 0),
+         "a positive bin side in metres or None"),
+    ):  # fmt: skip
+        if not ok:
+            raise bad_input(field_, value, expected, "see sample_hyperparameters' docstring")
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
-    const = mean is None or (isinstance(mean, str) and mean.lower() == "constant")
-    const = const or (isinstance(mean, Real) and not isinstance(mean, bool))
+    number = isinstance(mean, Real) and not isinstance(mean, bool)
+    const = number or mean is None or (isinstance(mean, str) and mean.lower() == "constant")
     base = None if const else as_mean_function(mean)
-    if isinstance(base, ConstantMean) or hasattr(base, "fit"):
+    if hasattr(base, "fit"):
         base = base.fit(samples.xy, samples.z)
     xy, z, zv = _thin(samples, int(max_samples), bin_size, rng)
     X = xy - xy.mean(axis=0)
     mX = None if base is None else np.asarray(base(xy), dtype=float)
     prior = _priors(kernel, X, z, zv, mX, base is not None, priors)
-    if const and mean not in (None, "constant") and "offset" not in (priors or {}):
+    if number and "offset" not in (priors or {}):
         prior["offset"] = (float(mean), prior["offset"][1])
     names = list(prior)
     p = len(names)

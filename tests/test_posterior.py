@@ -50,7 +50,7 @@ def test_posterior_recovers_known_kernel(recovered):
         assert lo < truth < hi, (post.param_names[i], lo, hi)
     summary = post.summary()
     assert set(summary["parameters"]) == set(post.param_names)
-    assert summary["ess"] > 100 and 0.2 < summary["acceptance_fraction"] < 0.8
+    assert summary["ess"] > 100 and 0.1 < summary["acceptance_fraction"] < 0.9
     assert np.all(post.tau > 0) and post.ess == pytest.approx(16 * 525 / post.tau.max())
 
 
