@@ -34,6 +34,8 @@ format: setup
 bench: setup
 	$(BIN)/python benchmarks/gp_exact.py --out benchmarks/results/gp_exact.json
 	$(BIN)/python benchmarks/planners.py --out benchmarks/results/planners.json
+	$(BIN)/python benchmarks/gp_scalable.py --out benchmarks/results/gp_scalable.json
+	$(BIN)/python benchmarks/emcee_posterior.py --out benchmarks/results/emcee_posterior.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache
