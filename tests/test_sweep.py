@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from survey.store import ResultStore
@@ -49,6 +50,23 @@ def test_run_task_is_deterministic_and_plausible():
     assert a == b
     assert 0 < a["rmse"] < 25 and a["path_length"] > 1000 and a["n_samples"] > 10
     assert 0 <= a["alpha"] <= 1 and 0 < a["scc"]
+
+
+def test_fitted_hyperparameters_give_calibrated_intervals():
+    # The paper's fixed hyperparameters are over-confident on noise-free samples; fitting
+    # Eq 9 per task must bring the 95 % interval coverage much closer to 0.95.
+    cfg = dict(n_terrains=2, resolution=20.0, spacing=10.0, seed=5)
+    rows = {
+        fit: [
+            run_task(SweepConfig(**cfg, fit_hyperparameters=fit).to_dict(), k, "lawnmower", 4)
+            for k in (0, 1)
+        ]
+        for fit in (False, True)
+    }
+    cov = {fit: np.mean([r["coverage_95"] for r in rs]) for fit, rs in rows.items()}
+    err = {fit: np.mean([r["rmse"] for r in rs]) for fit, rs in rows.items()}
+    assert cov[True] > cov[False] + 0.3 and cov[True] > 0.7, cov
+    assert err[True] < 1.2 * err[False], err  # calibration is not bought with accuracy
 
 
 def test_summary_minimum_swaths_hand_made_rows():

@@ -51,6 +51,10 @@ def sweep_command(
             help='How to read the paper\'s gamma = 315: "lengthscale" or "squared_lengthscale".'
         ),
     ] = "lengthscale",
+    fit: Annotated[
+        bool,
+        typer.Option(help="Fit hyperparameters per task (Eq 9) instead of the paper's fixed ones."),
+    ] = False,
     seed: Annotated[int, typer.Option(help="The one seed of the sweep.")] = 0,
     scheduler: Annotated[
         str | None,
@@ -75,6 +79,7 @@ def sweep_command(
         spacing=spacing,
         noise=noise,
         gamma_reading=gamma_reading,
+        fit_hyperparameters=fit,
         seed=seed,
     )
     with Progress(
