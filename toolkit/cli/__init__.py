@@ -9,7 +9,7 @@ from rich.console import Console
 
 from terrain.errors import GlacimapError
 
-from . import plan, reconstruct, sweep
+from . import export, plan, reconstruct, sweep
 
 app = typer.Typer(
     name="glacimap",
@@ -28,6 +28,7 @@ def _root() -> None:
 app.command("plan")(plan.plan_command)
 app.command("reconstruct")(reconstruct.reconstruct)
 app.command("sweep")(sweep.sweep_command)
+app.command("export")(export.export_command)
 
 err_console = Console(stderr=True)
 

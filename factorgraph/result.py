@@ -1,0 +1,125 @@
+"""What localization returns: poses, landmarks with their marginals, counts and timings."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .log import MeasurementLog
+
+__all__ = ["LocalizationResult"]
+
+
+@dataclass
+class LocalizationResult:
+    """The fused estimate of one traverse (local ENU frame of ``log.origin``, metres).
+
+    Attributes
+    ----------
+    keyframe_xyz : ndarray of shape (K, 3)
+        Final (smoothed) keyframe positions.
+    keyframe_R : ndarray of shape (K, 3, 3)
+        Final body-to-world rotations.
+    online_xyz : ndarray of shape (K, 3)
+        Each keyframe's position as estimated when it arrived (the filter answer).
+    pose_cov_xyz : ndarray of shape (K, 3, 3)
+        Marginal covariance of each keyframe position at the final estimate (m^2).
+    gps_bias : ndarray of shape (K, 3) or None
+        Estimated GPS bias (bias model only).
+    landmark_id : ndarray of shape (L,)
+        Track ids of the landmarks kept in the graph.
+    landmark_xyz : ndarray of shape (L, 3)
+        Landmark positions.
+    landmark_cov, landmark_cov_relative : ndarray of shape (L, 3, 3)
+        Full marginal covariance, and the covariance with the map-wide shared offset removed.
+    shared_offset_cov : ndarray of shape (3, 3)
+        Covariance of the rigid offset every landmark shares (from the mean GPS bias).
+    n_views : ndarray of shape (L,)
+        Observations of each landmark in the graph.
+    first_seen_distance_m : ndarray of shape (L,)
+        Rover-to-landmark distance when the landmark was initialised (m).
+    dropped : dict
+        Tracks never initialised, by reason (``too_few_views``, ``low_parallax``, ...).
+    step_s : ndarray of shape (K,)
+        Wall time of each iSAM2 step (s).
+    marginal_s : float
+        Wall time of all landmark marginals (s).
+    """
+
+    log: MeasurementLog
+    params: Any
+    keyframe_xyz: np.ndarray
+    keyframe_R: np.ndarray
+    online_xyz: np.ndarray
+    pose_cov_xyz: np.ndarray
+    gps_bias: np.ndarray | None
+    landmark_id: np.ndarray
+    landmark_xyz: np.ndarray
+    landmark_cov: np.ndarray
+    landmark_cov_relative: np.ndarray
+    shared_offset_cov: np.ndarray
+    n_views: np.ndarray
+    first_seen_distance_m: np.ndarray
+    dropped: dict[str, int]
+    step_s: np.ndarray
+    marginal_s: float
+    bandwidth: int = 0
+    graph: Any = field(default=None, repr=False)
+    estimate: Any = field(default=None, repr=False)
+
+    @classmethod
+    def build(
+        cls, *, log, params, estimate, graph, marginals, tracks, online_xyz, step_s, marginal_s
+    ) -> LocalizationResult:
+        import gtsam
+
+        X, B, L = (gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.B, gtsam.symbol_shorthand.L)
+        K = log.n_keyframes
+        poses = [estimate.atPose3(X(k)) for k in range(K)]
+        ids = np.array(sorted(tracks.active), dtype=int)
+        bias = None
+        if params.gps_model == "bias":
+            bias = np.array([estimate.atPoint3(B(k)) for k in range(K)])
+        views = np.bincount(
+            np.searchsorted(ids, log.obs_id[np.isin(log.obs_id, ids)]), minlength=ids.size
+        )
+        return cls(
+            log=log,
+            params=params,
+            keyframe_xyz=np.array([p.translation() for p in poses]),
+            keyframe_R=np.array([p.rotation().matrix() for p in poses]),
+            online_xyz=online_xyz,
+            pose_cov_xyz=marginals.pose_cov_xyz,
+            gps_bias=bias,
+            landmark_id=ids,
+            landmark_xyz=np.array([estimate.atPoint3(L(i)) for i in ids]).reshape(-1, 3),
+            landmark_cov=marginals.landmark_cov,
+            landmark_cov_relative=marginals.landmark_cov_relative,
+            shared_offset_cov=marginals.shared_cov,
+            n_views=views,
+            first_seen_distance_m=np.array([tracks.init_distance[i] for i in ids]),
+            dropped=dict(sorted(tracks.dropped.items())),
+            step_s=step_s,
+            marginal_s=marginal_s,
+            bandwidth=marginals.bandwidth,
+            graph=graph,
+            estimate=estimate,
+        )
+
+    @property
+    def n_landmarks(self) -> int:
+        return int(self.landmark_id.size)
+
+    def true_landmarks(self) -> np.ndarray:
+        """True positions (L, 3) of the landmarks, from the log's truth (simulation only)."""
+        tr = self.log.truth
+        pos = np.searchsorted(tr["landmark_id"], self.landmark_id)
+        return tr["landmark_xyz"][pos]
+
+    def to_projected(self, xyz: np.ndarray) -> np.ndarray:
+        """Local ENU (n, 3) -> projected easting, northing, elevation (n, 3) in ``log.crs``."""
+        out = np.array(xyz, float, copy=True)
+        out[:, :2] += self.log.origin
+        return out

@@ -1,0 +1,78 @@
+"""Output paths of the exports: checked up front, written atomically under their own extension."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+from terrain.atomic import atomic_path
+from terrain.errors import bad_input
+
+__all__ = ["atomic_file", "check_target"]
+
+
+def check_target(path: str | os.PathLike, suffixes: tuple[str, ...], field: str) -> Path:
+    """Validate an output file path before any work is done.
+
+    Parameters
+    ----------
+    path : path-like
+        The file to write.
+    suffixes : tuple of str
+        Accepted extensions, lower case with the dot (``(".tif", ".tiff")``); GIS clients and
+        GDAL's validators pick the format from it.
+    field : str
+        Name of the argument, for the error message.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path`` as a Path.
+
+    Raises
+    ------
+    terrain.errors.InputError
+        Wrong extension, a missing or non-directory parent folder, or a folder that cannot be
+        written.
+    """
+    try:
+        out = Path(path)
+    except TypeError as exc:
+        raise bad_input(field, path, "a file path", "pass a str or pathlib.Path") from exc
+    if out.suffix.lower() not in suffixes:
+        raise bad_input(
+            field, str(out), f"a file name ending in {' or '.join(suffixes)}", "rename it"
+        )
+    parent = out.parent
+    if not parent.is_dir():
+        raise bad_input(
+            field, str(out), "a path inside an existing folder", f"create {parent} first"
+        )
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise bad_input(field, str(out), "a path in a writable folder", "choose another folder")
+    if out.is_dir():
+        raise bad_input(field, str(out), "a file path, not a folder", "add a file name")
+    return out
+
+
+@contextlib.contextmanager
+def atomic_file(final: Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``final`` that keeps ``final``'s extension.
+
+    :func:`terrain.atomic.atomic_path` names its temporary ``.<stem>.<random><suffix>.tmp``;
+    GDAL drivers (GeoPackage warns about the extension), VTK and image writers look at the
+    extension, so this yields that name without ``.tmp`` and moves the finished file onto it.
+    On any error both temporaries are removed and ``final`` is untouched (DESIGN.md §4).
+    """
+    with atomic_path(final) as tmp:
+        inner = tmp.with_name(tmp.name[: -len(".tmp")])
+        try:
+            yield inner
+            os.replace(inner, tmp)
+        except BaseException:
+            inner.unlink(missing_ok=True)
+            for sidecar in ("-journal", "-wal", "-shm", ".aux.xml"):  # SQLite / GDAL leftovers
+                Path(str(inner) + sidecar).unlink(missing_ok=True)
+            raise
