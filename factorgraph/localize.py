@@ -38,10 +38,17 @@ class LocalizeParams:
     min_parallax_deg: float = 3.0  # widest angle between two viewing rays (deg)
     min_depth_m: float = 0.5  # in front of every camera, within the range limit
     max_reprojection_px: float = 4.0  # gate on the triangulated point's worst residual
+    # optional weak prior at the triangulated point (m); off by default: summed over
+    # thousands of landmarks even sigma = 10 m anchors the map to the online estimate
+    landmark_prior_sigma_m: float | None = None
     attitude_prior_deg: tuple[float, float, float] = (5.0, 5.0, 5.0)  # roll, pitch, yaw at k=0
     align_distance_m: float = 40.0  # path used to align dead reckoning to GPS at start
-    relinearize_threshold: float = 0.1  # tangent-space delta that triggers relinearization
-    relinearize_skip: int = 10  # check for relinearization every 10 steps (p95 step time)
+    # relinearize a variable when its tangent delta exceeds: pose (rot rad x3, trans m x3),
+    # GPS bias (m), landmark (m); translations barely change the Jacobians, rotations do
+    relinearize_pose: tuple[float, ...] = (0.01, 0.01, 0.01, 1.0, 1.0, 1.0)
+    relinearize_bias_m: float = 1.0
+    relinearize_landmark_m: float = 0.2
+    relinearize_skip: int = 10
     final_iterations: int = 3  # extra iSAM2 updates after the last keyframe
 
     def __post_init__(self) -> None:
@@ -116,9 +123,53 @@ class _Tracks:
     pending: dict[int, list[tuple[int, np.ndarray]]] = field(default_factory=dict)
     last_try: dict[int, str] = field(default_factory=dict)
     active: set[int] = field(default_factory=set)
+    banned: set[int] = field(default_factory=set)
     dropped: Counter = field(default_factory=Counter)
     first_k: dict[int, int] = field(default_factory=dict)
     init_distance: dict[int, float] = field(default_factory=dict)
+
+
+def _isam_params(params: LocalizeParams):
+    """iSAM2 settings: per-variable relinearization thresholds (tangent units)."""
+    import gtsam
+
+    p = gtsam.ISAM2Params()
+    th = gtsam.ISAM2ThresholdMap()
+    th.insert(("x", np.asarray(params.relinearize_pose, float)))
+    th.insert(("b", np.full(3, params.relinearize_bias_m)))
+    th.insert(("l", np.full(3, params.relinearize_landmark_m)))
+    p.setRelinearizeThreshold(th)
+    p.relinearizeSkip = params.relinearize_skip
+    return p
+
+
+def _rebuild(isam, isam_params, history, graph, values, new_lids, k, exc):
+    """A fresh iSAM2 holding ``history`` + this step's ``graph`` (without new landmarks)."""
+    import gtsam
+
+    from terrain.errors import NumericalError
+
+    L = gtsam.symbol_shorthand.L
+    theta = gtsam.Values(isam.getLinearizationPoint())
+    for lid in new_lids:
+        if theta.exists(L(lid)):
+            theta.erase(L(lid))
+    for key in values.keys():
+        if not theta.exists(key):
+            sym = chr(gtsam.Symbol(key).chr())
+            theta.insert(key, values.atPose3(key) if sym == "x" else values.atPoint3(key))
+    full = gtsam.NonlinearFactorGraph(history)
+    full.push_back(graph)
+    fresh = gtsam.ISAM2(isam_params)
+    try:
+        fresh.update(full, theta)
+    except RuntimeError as again:
+        raise NumericalError(
+            f"iSAM2 failed at keyframe {k} even after dropping {len(new_lids)} new "
+            f"landmarks and rebuilding: {str(exc).strip().splitlines()[0]}. Fix: check the "
+            "odometry and GPS noise levels in the log's sensor models"
+        ) from again
+    return fresh
 
 
 def _triangulate(views, poses, camera, bTc, K, params: LocalizeParams):
@@ -186,10 +237,12 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
         gtsam.noiseModel.mEstimator.Huber.Create(params.huber_k),
         gtsam.noiseModel.Isotropic.Sigma(2, camera.pixel_sigma_px),
     )
-    isam_params = gtsam.ISAM2Params()
-    isam_params.setRelinearizeThreshold(params.relinearize_threshold)
-    isam_params.relinearizeSkip = params.relinearize_skip
+    lm_prior = None
+    if params.landmark_prior_sigma_m:
+        lm_prior = gtsam.noiseModel.Isotropic.Sigma(3, params.landmark_prior_sigma_m)
+    isam_params = _isam_params(params)
     isam = gtsam.ISAM2(isam_params)
+    history = gtsam.NonlinearFactorGraph()  # every factor added so far (for a rebuild)
 
     gps_row = {int(k): i for i, k in enumerate(log.gps_k)}
     order = np.argsort(log.obs_k, kind="stable")
@@ -200,12 +253,14 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
     poses: dict[int, Any] = {}
     fresh: dict[int, int] = {}
     bias_prev = np.zeros(3)
+    n_rebuilds = 0
     step_s = np.zeros(log.n_keyframes)
     online = np.zeros((log.n_keyframes, 3))
 
     for k in range(log.n_keyframes):
         t0 = time.perf_counter()
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        lm_graph, lm_values, new_lids = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
         if k == 0:
             guess = _initial_pose(log, params)
             att = np.radians(params.attitude_prior_deg)
@@ -242,6 +297,8 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
             for i in idx:
                 lid, uv = int(log.obs_id[i]), log.obs_uv[i]
                 seen_now.add(lid)
+                if lid in tracks.banned:
+                    continue
                 if lid in tracks.active:
                     graph.add(
                         gtsam.GenericProjectionFactorCal3_S2(uv, pix_noise, X(k), L(lid), K, bTc)
@@ -259,9 +316,12 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
                 tracks.last_try[lid] = why
                 if pt is None:
                     continue
-                values.insert(L(lid), pt)
+                lm_values.insert(L(lid), pt)
+                new_lids.append(lid)
+                if lm_prior is not None:
+                    lm_graph.add(gtsam.PriorFactorPoint3(L(lid), pt, lm_prior))
                 for kv, uvv in views:
-                    graph.add(
+                    lm_graph.add(
                         gtsam.GenericProjectionFactorCal3_S2(uvv, pix_noise, X(kv), L(lid), K, bTc)
                     )
                 tracks.active.add(lid)
@@ -271,10 +331,25 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
             for lid in [j for j, v in tracks.pending.items() if v[-1][0] < k and j not in seen_now]:
                 tracks.dropped[tracks.last_try.pop(lid, "too_few_views")] += 1
                 del tracks.pending[lid]
-        isam.update(graph, values)
+        try:
+            step_graph, step_values = gtsam.NonlinearFactorGraph(graph), gtsam.Values(values)
+            step_graph.push_back(lm_graph)
+            step_values.insert(lm_values)
+            isam.update(step_graph, step_values)
+            history.push_back(step_graph)
+        except RuntimeError as exc:
+            # Never let one landmark end the run: drop this step's new landmarks (counted)
+            # and rebuild iSAM2 from every other factor at the current linearization point.
+            isam = _rebuild(isam, isam_params, history, graph, values, new_lids, k, exc)
+            n_rebuilds += 1
+            history.push_back(graph)
+            for lid in new_lids:
+                tracks.active.discard(lid)
+                tracks.banned.add(lid)
+                tracks.dropped["degenerate_in_graph"] += 1
         poses[k] = isam.calculateEstimatePose3(X(k))
         if bias_model:
-            isam.calculateEstimatePoint3(B(k))
+            bias_prev = isam.calculateEstimatePoint3(B(k))
         online[k] = poses[k].translation()
         step_s[k] = time.perf_counter() - t0
     for why in tracks.last_try.values():
@@ -294,6 +369,7 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
         marginals=marg,
         tracks=tracks,
         online_xyz=online,
+        n_rebuilds=n_rebuilds,
         step_s=step_s,
         marginal_s=marginal_s,
     )

@@ -53,6 +53,7 @@ def _factor_blocks(graph, values, n_kf: int, lm_index: dict[int, int], d: int):
     sym = gtsam.Symbol
     proj_x, proj_l, proj_k, proj_j = [], [], [], []
     other: list[tuple[np.ndarray, list[tuple[int, int, int]]]] = []
+    lm_prior: list[tuple[int, np.ndarray]] = []
     for i in range(gfg.size()):
         f = gfg.at(i)
         if f is None:
@@ -73,7 +74,10 @@ def _factor_blocks(graph, values, n_kf: int, lm_index: dict[int, int], d: int):
             else:  # bias
                 cols.append((c0, idx, 6, 3))
                 c0 += 3
-        if lm_col is not None:
+        if lm_col is not None and not cols:  # landmark prior
+            Al_only = A[:, lm_col[0] : lm_col[0] + 3]
+            lm_prior.append((lm_col[1], Al_only.T @ Al_only))
+        elif lm_col is not None:
             ((cx, k, _, _),) = cols
             proj_x.append(A[:, cx : cx + 6])
             proj_l.append(A[:, lm_col[0] : lm_col[0] + 3])
@@ -87,6 +91,7 @@ def _factor_blocks(graph, values, n_kf: int, lm_index: dict[int, int], d: int):
         np.array(proj_k, int),
         np.array(proj_j, int),
         other,
+        lm_prior,
     )
 
 
@@ -161,10 +166,12 @@ def landmark_marginals(graph, values, n_keyframes: int, landmark_ids, bias_model
     ids = list(landmark_ids)
     lm_index = {lid: j for j, lid in enumerate(ids)}
     nL = len(ids)
-    Ax, Al, pk, pj, other = _factor_blocks(graph, values, K, lm_index, d)
+    Ax, Al, pk, pj, other, lm_prior = _factor_blocks(graph, values, K, lm_index, d)
     # Landmark information blocks A_l and couplings B_l (per observation).
     A = np.zeros((nL, 3, 3))
     np.add.at(A, pj, np.einsum("nri,nrj->nij", Al, Al))
+    for j, info in lm_prior:
+        A[j] += info
     Bo = np.einsum("nri,nrj->nij", Al, Ax)  # (n_obs, 3, 6)
     span = np.zeros(nL, int)
     if pj.size:

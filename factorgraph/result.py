@@ -66,12 +66,24 @@ class LocalizationResult:
     step_s: np.ndarray
     marginal_s: float
     bandwidth: int = 0
+    n_rebuilds: int = 0  # iSAM2 rebuilds after a failed update (new landmarks dropped)
     graph: Any = field(default=None, repr=False)
     estimate: Any = field(default=None, repr=False)
 
     @classmethod
     def build(
-        cls, *, log, params, estimate, graph, marginals, tracks, online_xyz, step_s, marginal_s
+        cls,
+        *,
+        log,
+        params,
+        estimate,
+        graph,
+        marginals,
+        tracks,
+        online_xyz,
+        step_s,
+        marginal_s,
+        n_rebuilds=0,
     ) -> LocalizationResult:
         import gtsam
 
@@ -104,6 +116,7 @@ class LocalizationResult:
             step_s=step_s,
             marginal_s=marginal_s,
             bandwidth=marginals.bandwidth,
+            n_rebuilds=n_rebuilds,
             graph=graph,
             estimate=estimate,
         )
