@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -45,10 +46,15 @@ class LocalizeParams:
     align_distance_m: float = 40.0  # path used to align dead reckoning to GPS at start
     # relinearize a variable when its tangent delta exceeds: pose (rot rad x3, trans m x3),
     # GPS bias (m), landmark (m); translations barely change the Jacobians, rotations do
-    relinearize_pose: tuple[float, ...] = (0.01, 0.01, 0.01, 1.0, 1.0, 1.0)
-    relinearize_bias_m: float = 1.0
-    relinearize_landmark_m: float = 0.2
+    relinearize_pose: tuple[float, ...] = (0.05, 0.05, 0.05, 2.0, 2.0, 2.0)
+    relinearize_bias_m: float = 2.0
+    relinearize_landmark_m: float = 0.5
     relinearize_skip: int = 10
+    # Online relinearization (fluid, thresholds above). Off by default: on a full lawnmower the
+    # GPS keeps shifting the whole trajectory, relinearization then re-eliminates most of the
+    # tree (step times grew to seconds). The online pass then stays linear at the insertion
+    # points and ``final_iterations`` forced relinearizations (Gauss-Newton) finish the job.
+    relinearize: bool = False
     final_iterations: int = 3  # extra iSAM2 updates after the last keyframe
 
     def __post_init__(self) -> None:
@@ -140,36 +146,92 @@ def _isam_params(params: LocalizeParams):
     th.insert(("l", np.full(3, params.relinearize_landmark_m)))
     p.setRelinearizeThreshold(th)
     p.relinearizeSkip = params.relinearize_skip
+    if not params.relinearize:  # only the forced Gauss-Newton passes at the end relinearize
+        th = gtsam.ISAM2ThresholdMap()
+        for ch, n in (("x", 6), ("b", 3), ("l", 3)):
+            th.insert((ch, np.full(n, 1e9)))
+        p.setRelinearizeThreshold(th)
     return p
 
 
-def _rebuild(isam, isam_params, history, graph, values, new_lids, k, exc):
-    """A fresh iSAM2 holding ``history`` + this step's ``graph`` (without new landmarks)."""
+def _without(graph, bad: set[int]):
+    """Copy of ``graph`` without the factors touching any key in ``bad``."""
+    import gtsam
+
+    out = gtsam.NonlinearFactorGraph()
+    for i in range(graph.size()):
+        f = graph.at(i)
+        if f is not None and not bad.intersection(f.keys()):
+            out.push_back(f)
+    return out
+
+
+def _landmarks_seen_by(graph, pose_key: int) -> list[int]:
+    """Landmark ids with a factor on ``pose_key`` in ``graph``."""
+    import gtsam
+
+    out = set()
+    for i in range(graph.size()):
+        f = graph.at(i)
+        if f is None or pose_key not in f.keys():
+            continue
+        for key in f.keys():
+            s = gtsam.Symbol(key)
+            if chr(s.chr()) == "l":
+                out.add(int(s.index()))
+    return sorted(out)
+
+
+def _rebuild(isam, isam_params, history, graph, values, new_lids, k, exc, max_tries=25):
+    """A fresh iSAM2 from ``history`` + this step's ``graph``, without this step's new
+    landmarks and without any landmark the elimination reports as indeterminate (a point
+    pushed behind its cameras has no Jacobian). Returns ``(isam, history, dropped_ids)``."""
+    import re
+
     import gtsam
 
     from terrain.errors import NumericalError
 
     L = gtsam.symbol_shorthand.L
     theta = gtsam.Values(isam.getLinearizationPoint())
-    for lid in new_lids:
-        if theta.exists(L(lid)):
-            theta.erase(L(lid))
     for key in values.keys():
         if not theta.exists(key):
             sym = chr(gtsam.Symbol(key).chr())
             theta.insert(key, values.atPose3(key) if sym == "x" else values.atPoint3(key))
     full = gtsam.NonlinearFactorGraph(history)
     full.push_back(graph)
-    fresh = gtsam.ISAM2(isam_params)
-    try:
-        fresh.update(full, theta)
-    except RuntimeError as again:
-        raise NumericalError(
-            f"iSAM2 failed at keyframe {k} even after dropping {len(new_lids)} new "
-            f"landmarks and rebuilding: {str(exc).strip().splitlines()[0]}. Fix: check the "
-            "odometry and GPS noise levels in the log's sensor models"
-        ) from again
-    return fresh
+    dropped = list(new_lids)
+    bad = {L(lid) for lid in new_lids}
+    message = str(exc)
+    for _ in range(max_tries):
+        full = _without(full, bad)
+        for key in bad:
+            if theta.exists(key):
+                theta.erase(key)
+        fresh = gtsam.ISAM2(isam_params)
+        try:
+            fresh.update(full, theta)
+            return fresh, full, dropped
+        except RuntimeError as again:
+            message = str(again)
+            hit = re.search(r"Symbol: ([lx])(\d+)", message)
+            if hit is None:
+                break
+            if hit.group(1) == "l":
+                dropped.append(int(hit.group(2)))
+                bad = {L(dropped[-1])}
+            else:  # a pose: drop the landmarks it saw (their geometry made it singular)
+                X = gtsam.symbol_shorthand.X
+                seen = _landmarks_seen_by(full, X(int(hit.group(2))))
+                if not seen:
+                    break
+                dropped.extend(seen)
+                bad = {L(lid) for lid in seen}
+    raise NumericalError(
+        f"iSAM2 failed at keyframe {k} after dropping landmarks {dropped[:10]} and "
+        f"rebuilding: {message.strip().splitlines()[0]}. Fix: check the odometry and GPS "
+        "noise levels in the log's sensor models"
+    )
 
 
 def _triangulate(views, poses, camera, bTc, K, params: LocalizeParams):
@@ -205,7 +267,11 @@ def _triangulate(views, poses, camera, bTc, K, params: LocalizeParams):
     return pt, "ok"
 
 
-def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> LocalizationResult:
+def localize(
+    log: MeasurementLog,
+    params: LocalizeParams | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> LocalizationResult:
     """Fuse the log in iSAM2 and return poses, landmarks and their final marginals.
 
     Parameters
@@ -214,6 +280,8 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
         Keyframes, odometry, GPS and feature tracks (see :mod:`factorgraph.log`).
     params : LocalizeParams, optional
         Estimator settings; noise levels come from ``log.sensors``.
+    progress : callable, optional
+        Called as ``progress(k + 1, K)`` after each keyframe (for a progress bar).
 
     Returns
     -------
@@ -340,10 +408,11 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
         except RuntimeError as exc:
             # Never let one landmark end the run: drop this step's new landmarks (counted)
             # and rebuild iSAM2 from every other factor at the current linearization point.
-            isam = _rebuild(isam, isam_params, history, graph, values, new_lids, k, exc)
+            isam, history, lost = _rebuild(
+                isam, isam_params, history, graph, values, new_lids, k, exc
+            )
             n_rebuilds += 1
-            history.push_back(graph)
-            for lid in new_lids:
+            for lid in lost:
                 tracks.active.discard(lid)
                 tracks.banned.add(lid)
                 tracks.dropped["degenerate_in_graph"] += 1
@@ -352,12 +421,15 @@ def localize(log: MeasurementLog, params: LocalizeParams | None = None) -> Local
             bias_prev = isam.calculateEstimatePoint3(B(k))
         online[k] = poses[k].translation()
         step_s[k] = time.perf_counter() - t0
+        if progress is not None:
+            progress(k + 1, log.n_keyframes)
     for why in tracks.last_try.values():
         tracks.dropped[why] += 1
+    # Final Gauss-Newton passes: relinearize every variable at the current estimate.
     for _ in range(params.final_iterations):
-        isam.update()
+        isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [], None, None, None, True)
     estimate = isam.calculateEstimate()
-    graph = isam.getFactorsUnsafe()
+    graph = history
     t0 = time.perf_counter()
     marg = landmark_marginals(graph, estimate, log.n_keyframes, sorted(tracks.active), bias_model)
     marginal_s = time.perf_counter() - t0
