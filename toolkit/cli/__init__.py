@@ -9,7 +9,7 @@ from rich.console import Console
 
 from terrain.errors import GlacimapError
 
-from . import export, plan, reconstruct, sweep
+from . import certify, export, plan, reconstruct, report, run, sweep
 
 app = typer.Typer(
     name="glacimap",
@@ -25,10 +25,13 @@ def _root() -> None:
     """Certified, probabilistic elevation maps of glaciers from a rover survey."""
 
 
+app.command("run")(run.run_command)
 app.command("plan")(plan.plan_command)
 app.command("reconstruct")(reconstruct.reconstruct)
 app.command("sweep")(sweep.sweep_command)
 app.command("export")(export.export_command)
+app.command("certify")(certify.certify_command)
+app.command("report")(report.report_command)
 
 err_console = Console(stderr=True)
 

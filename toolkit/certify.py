@@ -1,0 +1,349 @@
+"""Accuracy certificate of a DEM against independent checkpoints (DESIGN.md §1 step 6).
+
+The certificate is a plain JSON-ready dict: vertical RMSE with a seeded bootstrap 95 %
+interval, bias, spread, NSSDA Accuracy_z, the contour interval the accuracy supports, one
+verdict per standard (:func:`survey.standards.verdicts`), the calibration of the 1-sigma band
+at the checkpoints, what was dropped and why, the seed and the software versions. It holds no
+wall-clock time unless one is passed in: the same inputs give the same bytes.
+
+Errors are ``DEM - checkpoint`` (positive bias: the DEM is too high), metres.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from survey import standards
+from terrain.atomic import atomic_path
+from terrain.errors import bad_input
+from terrain.grid import check_same_crs
+from terrain.metrics import interval_coverage, standardized_error_stats
+
+from .certify_io import (
+    Checkpoints,
+    DemRaster,
+    as_checkpoints,
+    read_checkpoints,
+    read_dem,
+    sample_bilinear,
+)
+
+__all__ = [
+    "CONVENTIONAL_INTERVALS_M",
+    "SCHEMA",
+    "Checkpoints",
+    "DemRaster",
+    "as_checkpoints",
+    "bootstrap_rmse_ci",
+    "certify",
+    "certificate_json",
+    "check_output_path",
+    "conventional_interval",
+    "read_checkpoints",
+    "read_dem",
+    "sample_bilinear",
+    "software_versions",
+    "write_certificate",
+]
+
+SCHEMA = "glacimap-certificate/1"
+#: Contour intervals (m) a certified interval is rounded up to (metric map practice).
+CONVENTIONAL_INTERVALS_M = (0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 2.5, 5.0, 10.0, 20.0, 25.0, 50.0)
+_PACKAGES = ("glacimap", "numpy", "scipy", "xarray", "rasterio", "pyproj", "gtsam")
+_MAX_ROWS_LISTED = 100  # dropped row indices listed per reason
+
+
+# --------------------------------------------------------------------------- statistics
+def bootstrap_rmse_ci(
+    errors: np.ndarray, *, n_boot: int = 2000, seed: int = 0, level: float = 0.95
+) -> tuple[float, float]:
+    """Percentile-bootstrap interval of RMSE (Efron & Tibshirani 1993, ch. 13).
+
+    ``errors`` (n,) in metres are resampled with replacement ``n_boot`` times with
+    ``numpy.random.default_rng(seed)``; returns the ``(1 - level) / 2`` and ``(1 + level) / 2``
+    percentiles of the resampled RMSEs, metres.
+    """
+    sq = np.asarray(errors, dtype=float) ** 2
+    if sq.ndim != 1 or sq.size == 0 or not np.isfinite(sq).all():
+        raise bad_input("errors", sq.shape, "a non-empty 1-D finite array (m)", "")
+    if int(n_boot) < 1:
+        raise bad_input("n_boot", n_boot, "at least 1 resample", "e.g. 2000")
+    rng = np.random.default_rng(seed)
+    rmses = np.empty(int(n_boot))
+    chunk = max(1, 2_000_000 // sq.size)  # bound memory at ~16 MB of indices per draw
+    for start in range(0, rmses.size, chunk):
+        k = min(chunk, rmses.size - start)
+        rmses[start : start + k] = np.sqrt(sq[rng.integers(0, sq.size, (k, sq.size))].mean(1))
+    lo, hi = np.percentile(rmses, [50.0 * (1 - level), 50.0 * (1 + level)])
+    return float(lo), float(hi)
+
+
+def conventional_interval(ci_m: float) -> float:
+    """Smallest of :data:`CONVENTIONAL_INTERVALS_M` >= ``ci_m`` (m); beyond them, the next
+    multiple of 100 m."""
+    for c in CONVENTIONAL_INTERVALS_M:
+        if c >= ci_m * (1 - 1e-9):
+            return c
+    return 100.0 * math.ceil(ci_m / 100.0)
+
+
+def software_versions() -> dict[str, str]:
+    """Installed versions (importlib.metadata) of glacimap and the libraries it certifies
+    with; packages that are not installed are left out."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for name in _PACKAGES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            continue
+    return out
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-ready copy: numpy scalars and arrays to Python, NaN/inf to None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple | np.ndarray):
+        return [_clean(v) for v in (obj.tolist() if isinstance(obj, np.ndarray) else obj)]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _dropped(mask: np.ndarray) -> dict[str, Any]:
+    rows = np.flatnonzero(mask)
+    return {
+        "count": int(rows.size),
+        "rows": rows[:_MAX_ROWS_LISTED].tolist(),
+        "rows_truncated": bool(rows.size > _MAX_ROWS_LISTED),
+    }
+
+
+# --------------------------------------------------------------------------- certify
+def certify(
+    dem: Any,
+    checkpoints: Checkpoints | str | os.PathLike | Mapping[str, Any],
+    *,
+    contour_interval_m: float | None = None,
+    checkpoint_rmse_m: float = 0.0,
+    seed: int = 0,
+    n_boot: int = 2000,
+    feature: str = "contour",
+    crs: Any = None,
+    created: str | None = None,
+) -> dict[str, Any]:
+    """Certify the vertical accuracy of ``dem`` against ``checkpoints``.
+
+    Parameters
+    ----------
+    dem : xarray.Dataset, xarray.DataArray or path-like
+        Terrain product (``elevation``, optional ``elevation_std``, m), truth DEM, GeoTIFF
+        or NetCDF path; see :func:`read_dem`.
+    checkpoints : Checkpoints, path-like, mapping or DataFrame
+        Independent check points in the DEM's CRS: a file (:func:`read_checkpoints`) or a
+        table with columns ``x, y, z[, z_std, crs]`` (:func:`as_checkpoints`).
+    contour_interval_m : float, optional
+        Interval to certify (m). Default: the finest interval ASPRS 1990 Class 1 allows
+        (CI = 3 RMSE_z for contours), rounded up to :data:`CONVENTIONAL_INTERVALS_M`.
+    checkpoint_rmse_m : float
+        RMSE of the checkpoint survey itself (m); used by ASPRS 2014/2023 rules.
+    seed, n_boot : int
+        Seed of ``numpy.random.default_rng`` and number of bootstrap resamples for the RMSE
+        confidence interval.
+    feature : {"contour", "spot"}
+        ASPRS 1990 feature type.
+    crs : optional
+        CRS of checkpoints that name none (see :func:`as_checkpoints`).
+    created : str, optional
+        A timestamp to record; none is recorded otherwise (reproducible bytes).
+
+    Returns
+    -------
+    dict
+        JSON-ready certificate; keys ``schema, dem, checkpoints, parameters, accuracy,
+        contour_interval, verdicts, calibration, error_histogram, seed, software`` (and
+        ``created`` when given).
+
+    Raises
+    ------
+    terrain.errors.InputError
+        Bad DEM / checkpoints / parameters, or no checkpoint on valid DEM cells.
+    terrain.errors.CRSMismatchError
+        Checkpoints and DEM in different CRSs.
+    """
+    if not isinstance(feature, str) or feature not in ("contour", "spot"):
+        raise bad_input("feature", feature, "'contour' or 'spot'", "ASPRS 1990 feature type")
+    cp_rmse = standards.combined_rmse_with_checkpoints(0.0, checkpoint_rmse_m)  # validates it
+    if contour_interval_m is not None and not (
+        math.isfinite(float(contour_interval_m)) and float(contour_interval_m) > 0
+    ):
+        raise bad_input("contour_interval_m", contour_interval_m, "a positive interval (m)", "")
+    raster = read_dem(dem)
+    cps = as_checkpoints(checkpoints, crs)
+    check_same_crs(cps.crs, raster.grid.crs, f"checkpoints ({cps.source})", "DEM")
+
+    nan = cps.nan_rows()
+    xy = np.where(nan[:, None], 0.0, cps.xy)
+    outside = ~nan & ~raster.grid.contains(xy)
+    dem_z = np.full(cps.n, np.nan)
+    cand = ~nan & ~outside
+    dem_z[cand] = sample_bilinear(raster.grid, raster.elevation, xy[cand])
+    nodata = cand & ~np.isfinite(dem_z)
+    used = cand & ~nodata
+    n = int(used.sum())
+    if n == 0:
+        raise bad_input(
+            "checkpoints",
+            f"0 of {cps.n} usable ({int(nan.sum())} NaN, {int(outside.sum())} outside the "
+            f"DEM, {int(nodata.sum())} on nodata)",
+            "checkpoints on valid DEM cells",
+            "check the CRS and the extent of both files",
+        )
+    err = dem_z[used] - cps.z[used]
+    rmse = float(np.sqrt(np.mean(err**2)))
+    lo, hi = bootstrap_rmse_ci(err, n_boot=n_boot, seed=seed)
+    accuracy = {
+        "n": n,
+        "error_definition": "DEM minus checkpoint, m",
+        "rmse_m": rmse,
+        "rmse_ci95_m": [lo, hi],
+        "bias_m": float(err.mean()),
+        "std_m": float(err.std(ddof=1)) if n > 1 else None,
+        "mae_m": float(np.abs(err).mean()),
+        "max_abs_error_m": float(np.abs(err).max()),
+        "p95_abs_error_m": float(np.percentile(np.abs(err), 95)),
+        "accuracy_95_m": standards.accuracy_95(rmse, "nssda"),
+        "rmse_with_checkpoint_error_m": standards.combined_rmse_with_checkpoints(rmse, cp_rmse),
+    }
+
+    finest = {
+        f"asprs1990_class{k}": standards.finest_contour_interval(rmse, "asprs1990", str(k), feature)
+        for k in (1, 2, 3)
+    }
+    finest["nmas"] = standards.finest_contour_interval(rmse, "nmas")
+    finest["paper"] = standards.finest_contour_interval(rmse, "paper")
+    if contour_interval_m is None:
+        ci = conventional_interval(finest["asprs1990_class1"])
+        how = "finest ASPRS 1990 Class 1 interval, rounded up to a conventional one"
+    else:
+        ci, how = float(contour_interval_m), "given"
+    area_km2 = (lambda b: (b[2] - b[0]) * (b[3] - b[1]) / 1e6)(raster.grid.bounds)
+    verdicts = standards.verdicts(
+        rmse, ci, cp_rmse, n_checkpoints=n, feature=feature, area_km2=area_km2
+    )
+
+    calibration = None
+    if raster.elevation_std is not None:
+        std = sample_bilinear(raster.grid, raster.elevation_std, xy[used])
+        if cps.z_std is not None:
+            std = np.hypot(std, cps.z_std[used])  # difference of independent errors
+        ok = np.isfinite(std)
+        if ok.any():
+            pred, truth, s = dem_z[used][ok], cps.z[used][ok], std[ok]
+            z_mean, z_std = standardized_error_stats(pred, s, truth)
+            calibration = {
+                "n": int(ok.sum()),
+                "sigma": "elevation_std"
+                + (" (+) checkpoint z_std" if cps.z_std is not None else ""),
+                "coverage_68": interval_coverage(pred, s, truth, z=1.0),
+                "coverage_95": interval_coverage(pred, s, truth, z=1.96),
+                "z_mean": z_mean,
+                "z_std": z_std,
+                "mean_sigma_m": float(s.mean()),
+            }
+    counts, edges = np.histogram(err, bins=min(30, max(5, int(np.sqrt(n)))))
+    g = raster.grid
+    cert = {
+        "schema": SCHEMA,
+        "dem": {
+            **raster.source,
+            "crs": g.crs.to_string(),
+            "shape": list(g.shape),
+            "resolution_m": list(g.resolution),
+            "bounds": list(g.bounds),
+            "area_km2": area_km2,
+            "has_std_band": raster.elevation_std is not None,
+            "provenance": raster.provenance,
+        },
+        "checkpoints": {
+            "source": cps.source,
+            "sha256": cps.sha256,
+            "crs": None if cps.crs is None else cps.crs.to_string(),
+            "crs_note": None if cps.crs is not None else "none given: assumed the DEM's",
+            "n_total": cps.n,
+            "n_used": n,
+            "n_dropped": cps.n - n,
+            "dropped": {
+                "nan_values": _dropped(nan),
+                "outside_dem": _dropped(outside),
+                "nodata": _dropped(nodata),
+            },
+            "has_z_std": cps.z_std is not None,
+        },
+        "parameters": {
+            "contour_interval_m": contour_interval_m,
+            "checkpoint_rmse_m": cp_rmse,
+            "feature": feature,
+            "n_boot": int(n_boot),
+            "bootstrap": "percentile, numpy.random.default_rng(seed)",
+            "sampling": "bilinear between cell centres; any NaN neighbour -> nodata",
+        },
+        "accuracy": accuracy,
+        "contour_interval": {"certified_m": ci, "how": how, "finest_m": finest},
+        "verdicts": verdicts,
+        "calibration": calibration,
+        "error_histogram": {"edges_m": edges, "counts": counts},
+        "seed": int(seed),
+        "software": software_versions(),
+    }
+    if created is not None:
+        cert["created"] = str(created)
+    return _clean(cert)
+
+
+def certificate_json(cert: dict[str, Any]) -> str:
+    """The certificate as deterministic JSON text (2-space indent, NaN as null, other
+    non-JSON objects as ``str``, final newline)."""
+    return json.dumps(_clean(cert), indent=2, allow_nan=False, default=str) + "\n"
+
+
+def check_output_path(path: str | os.PathLike, field: str = "--out") -> Path:
+    """Check before any work that ``path`` can be written: an existing, writable folder and
+    not a folder itself. Raises :class:`terrain.errors.InputError` naming ``field``."""
+    path = Path(path)
+    if path.is_dir() or not path.parent.is_dir():
+        fix = "add a file name" if path.is_dir() else f"create {path.parent} first"
+        raise bad_input(field, str(path), "a file path in an existing folder", fix)
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise bad_input(field, str(path), "a path in a writable folder", "choose another one")
+    return path
+
+
+def write_certificate(cert: dict[str, Any], path: str | os.PathLike) -> Path:
+    """Write ``cert`` as JSON (:func:`certificate_json`) to ``path`` atomically: the file is
+    complete or absent.
+
+    Raises
+    ------
+    terrain.errors.InputError
+        The folder is missing or not writable, or ``path`` is a folder.
+    """
+    text = certificate_json(cert)
+    path = check_output_path(path)
+    try:
+        with atomic_path(path) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise bad_input("--out", str(path), "a writable file", str(exc)) from exc
+    return path

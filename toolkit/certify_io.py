@@ -1,0 +1,368 @@
+"""Inputs of the accuracy certificate: checkpoint tables and DEMs (used by :mod:`toolkit.certify`).
+
+- :func:`read_checkpoints` — CSV / Parquet checkpoints with x, y, z[, z_std, crs] (metres);
+  :func:`as_checkpoints` also takes a mapping / DataFrame of those columns.
+- :func:`read_dem` — a terrain product Dataset, a truth DataArray, a GeoTIFF or a NetCDF file.
+- :func:`sample_bilinear` — strict bilinear sampling between cell centres (NaN near nodata).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pyproj import CRS
+
+from terrain import Grid
+from terrain.errors import bad_input
+from terrain.grid import as_crs, check_same_crs
+
+__all__ = [
+    "Checkpoints",
+    "DemRaster",
+    "as_checkpoints",
+    "read_checkpoints",
+    "read_dem",
+    "sample_bilinear",
+]
+
+_COLUMNS = ("x", "y", "z")
+_GEOREF = frozenset({"crs", "crs_wkt", "transform", "resolution"})
+
+
+# --------------------------------------------------------------------------- checkpoints
+@dataclass(frozen=True)
+class Checkpoints:
+    """Independent check points, every row as read (NaN rows kept, counted by ``certify``).
+
+    Attributes
+    ----------
+    xy : ndarray of shape (n, 2)
+        Easting/northing in ``crs``, metres.
+    z : ndarray of shape (n,)
+        Surveyed elevation, metres.
+    z_std : ndarray of shape (n,) or None
+        1-sigma of each surveyed elevation, metres, when the file has a ``z_std`` column.
+    crs : pyproj.CRS or None
+        Projected CRS of ``xy`` (anything pyproj understands is converted); None when the
+        file, a sidecar and the caller name none.
+    source : str
+        File name (or ``"arrays"``); ``sha256`` of the file's bytes when read from one.
+    """
+
+    xy: np.ndarray
+    z: np.ndarray
+    z_std: np.ndarray | None = None
+    crs: CRS | None = None
+    source: str = "arrays"
+    sha256: str | None = None
+
+    def __post_init__(self) -> None:
+        xy = np.asarray(self.xy, dtype=float)
+        z = np.asarray(self.z, dtype=float).reshape(-1)
+        if xy.ndim != 2 or xy.shape != (z.size, 2):
+            raise bad_input("checkpoints.xy", xy.shape, f"shape ({z.size}, 2) like z", "")
+        z_std = None if self.z_std is None else np.asarray(self.z_std, dtype=float).reshape(-1)
+        if z_std is not None and z_std.shape != z.shape:
+            raise bad_input("checkpoints.z_std", z_std.shape, f"shape {z.shape} like z", "")
+        if z_std is not None and np.nanmin(z_std, initial=0.0) < 0:
+            raise bad_input("z_std", float(np.nanmin(z_std)), "1-sigma >= 0 (m)", "fix it")
+        object.__setattr__(self, "xy", xy)
+        object.__setattr__(self, "z", z)
+        object.__setattr__(self, "z_std", z_std)
+        if self.crs is not None:
+            object.__setattr__(self, "crs", as_crs(self.crs, "checkpoints.crs"))
+
+    @property
+    def n(self) -> int:
+        """Number of rows."""
+        return int(self.z.shape[0])
+
+    def nan_rows(self) -> np.ndarray:
+        """Boolean mask, shape (n,): rows with a NaN in x, y, z (or z_std when present)."""
+        cols = [self.xy[:, 0], self.xy[:, 1], self.z]
+        if self.z_std is not None:
+            cols.append(self.z_std)
+        return ~np.logical_and.reduce([np.isfinite(c) for c in cols])
+
+
+def _float(text: Any, where: str) -> float:
+    if text is None or (isinstance(text, str) and not text.strip()):
+        return math.nan
+    try:
+        return float(text)
+    except (TypeError, ValueError) as exc:
+        raise bad_input(where, text, "a number (m)", "fix the cell or leave it empty") from exc
+
+
+def _table(path: Path) -> dict[str, list[Any]]:
+    """Columns of a CSV or Parquet file by lower-cased name (values as read)."""
+    if path.suffix.lower() == ".parquet":
+        import pyarrow.parquet as pq
+
+        try:
+            table = pq.read_table(path)
+        except Exception as exc:  # pyarrow raises ArrowInvalid / OSError subclasses
+            raise bad_input("CHECKPOINTS", path.name, "a Parquet table", str(exc)) from exc
+        return {n.strip().lower(): table.column(n).to_pylist() for n in table.column_names}
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            header = [h.strip().lower() for h in next(reader, [])]
+            rows = [r for r in reader if any(c.strip() for c in r)]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise bad_input("CHECKPOINTS", path.name, "a readable UTF-8 CSV", str(exc)) from exc
+    bad = [i for i, r in enumerate(rows) if len(r) != len(header)]
+    if bad:
+        raise bad_input(
+            f"{path.name} row {bad[0]}",
+            rows[bad[0]],
+            f"{len(header)} cells like the header {header}",
+            "fix the row",
+        )
+    return {h: [r[j] for r in rows] for j, h in enumerate(header)}
+
+
+def _file_crs(path: Path | None, cols: dict[str, Any]) -> tuple[Any, str] | None:
+    """CRS named by a ``crs`` column (one value) or a sidecar ``<stem>.crs`` / ``<stem>.prj``."""
+    if "crs" in cols:
+        raw = [cols["crs"]] if isinstance(cols["crs"], str) else list(cols["crs"])
+        values = sorted({str(v).strip() for v in raw if v is not None and str(v).strip()})
+        values = [v for v in values if v.lower() != "nan"]
+        if len(values) > 1:
+            raise bad_input("crs column", values, "one CRS for every row", "reproject the rows")
+        if values:
+            return values[0], "crs column"
+    for suffix in (".crs", ".prj") if path is not None else ():
+        side = path.with_suffix(suffix)
+        if side.is_file():
+            return side.read_text(encoding="utf-8").strip(), f"sidecar {side.name}"
+    return None
+
+
+def _column(values: Any, where: str) -> np.ndarray:
+    try:
+        return np.asarray(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return np.array([_float(v, f"{where} row {i}") for i, v in enumerate(values)])
+
+
+def _from_columns(
+    cols: dict[str, Any], name: str, crs: Any, path: Path | None, sha256: str | None
+) -> Checkpoints:
+    missing = [c for c in _COLUMNS if c not in cols]
+    if missing:
+        raise bad_input(
+            f"{name} columns",
+            sorted(cols),
+            f"columns x, y, z[, z_std, crs]; missing {', '.join(missing)}",
+            "rename the header (x, y: easting/northing m; z: elevation m)",
+        )
+    arr = {c: _column(cols[c], f"{name} column {c}") for c in (*_COLUMNS, "z_std") if c in cols}
+    found = _file_crs(path, cols)
+    resolved = None if crs is None else as_crs(crs, "crs")
+    if found is not None:
+        file_crs = as_crs(found[0], f"{name} {found[1]}")
+        check_same_crs(resolved, file_crs, "crs argument", f"{name} ({found[1]})")
+        resolved = file_crs
+    n = {k: v.size for k, v in arr.items()}
+    if len(set(n.values())) > 1:
+        raise bad_input(f"{name} columns", n, "columns of one length", "check the table")
+    xy = np.column_stack([arr["x"], arr["y"]]).reshape(-1, 2)
+    return Checkpoints(xy, arr["z"], arr.get("z_std"), resolved, name, sha256)
+
+
+def read_checkpoints(path: str | os.PathLike, crs: Any = None) -> Checkpoints:
+    """Read checkpoints from CSV (header row) or Parquet (``.parquet``).
+
+    Parameters
+    ----------
+    path : path-like
+        Columns ``x, y, z`` (easting, northing, elevation; metres in a projected CRS) and
+        optionally ``z_std`` (1-sigma, m) and ``crs``; names are case-insensitive. Empty cells
+        become NaN: such rows are kept and reported as dropped by :func:`certify`.
+    crs : str or pyproj.CRS, optional
+        CRS of the coordinates. Also read from a ``crs`` column or a sidecar file
+        ``<stem>.crs`` (e.g. ``EPSG:32608``) or ``<stem>.prj`` (WKT); all that are given must
+        agree.
+
+    Raises
+    ------
+    terrain.errors.InputError
+        Missing file or columns (named), a non-numeric cell, a negative ``z_std``, a
+        geographic CRS.
+    terrain.errors.CRSMismatchError
+        The ``crs`` argument and the file's CRS differ.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise bad_input("CHECKPOINTS", str(path), "an existing CSV or Parquet file", "check it")
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    return _from_columns(_table(path), path.name, crs, path, digest)
+
+
+def as_checkpoints(obj: Any, crs: Any = None) -> Checkpoints:
+    """Checkpoints from a :class:`Checkpoints`, a file (:func:`read_checkpoints`), or a table:
+    a mapping or DataFrame with columns ``x, y, z[, z_std, crs]`` (m). ``crs`` fills in a CRS
+    the input does not name and must agree with one it names."""
+    if isinstance(obj, Checkpoints):
+        check_same_crs(None if crs is None else as_crs(crs), obj.crs, "crs argument", "checkpoints")
+        return obj if obj.crs is not None or crs is None else replace(obj, crs=crs)
+    if isinstance(obj, str | os.PathLike):
+        return read_checkpoints(obj, crs)
+    try:
+        cols = {str(k).strip().lower(): obj[k] for k in obj.keys()}
+    except (AttributeError, TypeError, KeyError) as exc:
+        expected = "Checkpoints, a CSV/Parquet path or a table with x, y, z"
+        raise bad_input("checkpoints", type(obj).__name__, expected, "") from exc
+    return _from_columns(cols, "checkpoints", crs, None, None)
+
+
+# --------------------------------------------------------------------------- the DEM
+@dataclass(frozen=True)
+class DemRaster:
+    """A DEM loaded for certification.
+
+    Attributes
+    ----------
+    grid : terrain.Grid
+        North-up raster definition (cell centres, projected CRS, metres).
+    elevation : ndarray of shape grid.shape
+        Elevation, metres; NaN on nodata.
+    elevation_std : ndarray of shape grid.shape or None
+        1-sigma band (m) when the DEM carries one.
+    source : dict
+        ``kind`` (``"dataset"``, ``"geotiff"``, ``"netcdf"``), ``name`` and ``sha256``.
+    provenance : dict of str
+        Non-georeferencing attributes / tags (seed, method, kernel, ...).
+    """
+
+    grid: Grid
+    elevation: np.ndarray
+    elevation_std: np.ndarray | None
+    source: dict[str, Any]
+    provenance: dict[str, str] = field(default_factory=dict)
+
+
+def _provenance(attrs: dict[str, Any]) -> dict[str, str]:
+    out = {}
+    for key in sorted(attrs, key=str):
+        value = attrs[key]
+        if str(key) in _GEOREF or str(key).startswith("_"):
+            continue
+        value = value.tolist() if isinstance(value, np.ndarray | np.generic) else value
+        out[str(key)] = value if isinstance(value, str) else json.dumps(value, default=str)
+    return out
+
+
+def _from_xarray(obj: Any, source: dict[str, Any]) -> DemRaster:
+    import xarray as xr
+
+    if isinstance(obj, xr.Dataset):
+        if "elevation" not in obj.data_vars:
+            raise bad_input(
+                "DEM variables", sorted(map(str, obj.data_vars)), "'elevation' (m)", "rename it"
+            )
+        elev, std = obj["elevation"], obj.get("elevation_std")
+    elif isinstance(obj, xr.DataArray):
+        elev, std = obj, None
+    else:
+        raise bad_input("dem", type(obj).__name__, "a Dataset, DataArray or file path", "")
+    if tuple(elev.dims) != ("y", "x"):
+        raise bad_input("DEM dims", tuple(elev.dims), "('y', 'x')", "ds.transpose('y', 'x')")
+    grid = Grid.from_dataarray(obj)
+    z = np.asarray(elev.values, dtype=float)
+    s = None if std is None else np.asarray(std.values, dtype=float)
+    if source.get("sha256") is None:
+        h = hashlib.sha256(np.ascontiguousarray(z).tobytes())
+        if s is not None:
+            h.update(np.ascontiguousarray(s).tobytes())
+        source = {**source, "sha256": h.hexdigest()}
+    return DemRaster(grid, z, s, source, _provenance(dict(obj.attrs)))
+
+
+def _from_geotiff(path: Path, source: dict[str, Any]) -> DemRaster:
+    import rasterio
+    from rasterio.errors import RasterioIOError
+
+    try:
+        src = rasterio.open(path)
+    except RasterioIOError as exc:
+        raise bad_input("DEM", path.name, "a readable GeoTIFF", str(exc)) from exc
+    with src:
+        if src.crs is None:
+            raise bad_input(
+                "DEM crs",
+                path.name,
+                "a GeoTIFF with a projected CRS",
+                "assign one, e.g. gdal_edit.py -a_srs EPSG:32608 DEM.tif",
+            )
+        t = src.transform
+        if t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
+            raise bad_input("DEM transform", tuple(t)[:6], "north-up, no rotation", "gdalwarp it")
+        grid = Grid(t.c, t.f, (t.a, -t.e), (src.height, src.width), src.crs.to_wkt())
+
+        def band(i: int) -> np.ndarray:
+            return np.ma.filled(src.read(i, masked=True).astype(float), np.nan)
+
+        descriptions = list(src.descriptions)
+        std = (
+            band(descriptions.index("elevation_std") + 1)
+            if "elevation_std" in descriptions
+            else None
+        )
+        return DemRaster(grid, band(1), std, source, _provenance(src.tags()))
+
+
+def read_dem(dem: Any) -> DemRaster:
+    """Load a DEM: a terrain product ``xarray.Dataset`` (or truth ``DataArray``), a GeoTIFF
+    (band 1 elevation; a band described ``elevation_std`` is the 1-sigma; nodata masked) or
+    a NetCDF terrain product (``.nc``).
+
+    Raises
+    ------
+    terrain.errors.InputError
+        Missing file, unknown extension, a GeoTIFF without CRS or not north-up, a geographic
+        CRS, a Dataset without ``elevation``.
+    """
+    if not isinstance(dem, str | os.PathLike):
+        return _from_xarray(dem, {"kind": "dataset", "name": type(dem).__name__, "sha256": None})
+    path = Path(dem)
+    if not path.is_file():
+        raise bad_input("DEM", str(path), "an existing GeoTIFF or NetCDF file", "check the path")
+    suffix = path.suffix.lower()
+    source = {"name": path.name, "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+    if suffix in (".tif", ".tiff"):
+        return _from_geotiff(path, {"kind": "geotiff", **source})
+    if suffix == ".nc":
+        import xarray as xr
+
+        with xr.open_dataset(path) as ds:
+            return _from_xarray(ds.load(), {"kind": "netcdf", **source})
+    raise bad_input("DEM", path.name, "a .tif/.tiff GeoTIFF or .nc product", "convert it")
+
+
+def sample_bilinear(grid: Grid, values: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Bilinear interpolation between cell centres, NaN if any neighbour with weight > 0 is
+    NaN (strict: a checkpoint next to nodata is not scored). Points between the outer cell
+    edge and the outermost centres take the edge cells' values (clamped)."""
+    dx, dy = grid.resolution
+    col = np.clip((xy[:, 0] - grid.x[0]) / dx, 0, grid.nx - 1)
+    row = np.clip((grid.y[0] - xy[:, 1]) / dy, 0, grid.ny - 1)
+    c0 = np.minimum(np.floor(col).astype(int), max(grid.nx - 2, 0))
+    r0 = np.minimum(np.floor(row).astype(int), max(grid.ny - 2, 0))
+    fc, fr = col - c0, row - r0
+    out = np.zeros(len(xy))
+    for dr, wr in ((0, 1 - fr), (1, fr)):
+        for dc, wc in ((0, 1 - fc), (1, fc)):
+            v = values[np.minimum(r0 + dr, grid.ny - 1), np.minimum(c0 + dc, grid.nx - 1)]
+            w = wr * wc
+            out += np.where(w > 0, w * v, 0.0)  # NaN * w > 0 stays NaN
+    return out

@@ -1,0 +1,271 @@
+"""The main job (DESIGN.md §1): plan → simulate → iSAM2 → select landmarks → reconstruct →
+certify → export → report, over the public APIs of survey, factorgraph and terrain."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from factorgraph.localize import LocalizeParams, localize
+from factorgraph.select import select_landmarks
+from factorgraph.sensors import SensorSuite
+from factorgraph.simulate import simulate_traverse
+from terrain import Grid, TerrainGP, TriangulatedMean, coarse_dem, delaunay_linear, evaluate
+from terrain.atomic import atomic_path, ensure_writable_dir
+from terrain.sampling import sample_dem
+from terrain.synthetic import default_site, random_terrain
+
+from .config import load_scenario
+from .demo import DEMO_KERNEL
+
+__all__ = ["RunResult", "STAGES", "run_scenario"]
+
+STAGES = ("plan", "simulate", "localize", "select", "reconstruct", "certify", "export", "report")
+
+
+@dataclass
+class RunResult:
+    """What ``glacimap run`` made: products on disk plus the in-memory objects."""
+
+    out: Path
+    scenario: dict[str, Any]
+    timings: dict[str, float] = field(default_factory=dict)
+    summary: dict[str, Any] = field(default_factory=dict)
+    objects: dict[str, Any] = field(default_factory=dict)
+
+
+def _truth(site: dict[str, Any], seed: int):
+    if site["kind"] == "default":
+        return default_site(resolution=float(site["truth_resolution_m"]))
+    grid = Grid.from_bounds(tuple(site["bounds"]), float(site["truth_resolution_m"]), site["crs"])
+    return random_terrain(grid, relief=float(site["relief_m"]), seed=seed, features=True)
+
+
+def _plan(scenario: dict[str, Any], truth, seed: int):
+    from survey.lawnmower import lawnmower
+    from survey.piecewise import piecewise_continuous
+
+    p, bounds = scenario["plan"], tuple(scenario["site"]["bounds"])
+    if p["pattern"] == "lawnmower":
+        return lawnmower(
+            bounds, int(p["n_swaths"]), margin=float(p["margin_m"]), crs=truth_crs(truth)
+        )
+    prior = TriangulatedMean(coarse_dem(truth, cells=(8, 8)))
+    return piecewise_continuous(
+        bounds, int(p["n_swaths"]), prior, seed=seed, margin=float(p["margin_m"])
+    )
+
+
+def truth_crs(truth) -> str:
+    return Grid.from_dataarray(truth).crs.to_string()
+
+
+def _checkpoints(truth, bounds, n: int, rng: np.random.Generator):
+    """Independent checkpoints: ``n`` seeded random points inside the site, z from the truth."""
+    w, s, e, nn = bounds
+    grid = Grid.from_dataarray(truth)
+    lo = np.maximum([w, s], [grid.x[0], grid.y[-1]])
+    hi = np.minimum([e, nn], [grid.x[-1], grid.y[0]])
+    xy = rng.uniform(lo, hi, (n, 2))
+    from .certify_io import Checkpoints
+
+    return Checkpoints(xy, sample_dem(truth, xy), crs=grid.crs, source="truth (simulated)")
+
+
+def run_scenario(
+    config: str | Path | None = None,
+    out: str | Path = "out/run",
+    overrides: dict[str, Any] | None = None,
+    on_stage: Callable[[str, str], None] | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+) -> RunResult:
+    """Run the whole pipeline on a scenario and write every product into ``out``.
+
+    Parameters
+    ----------
+    config : path, optional
+        Scenario TOML (see :mod:`toolkit.config`); default: the embedded scenario.
+    out : path
+        Output folder (created; must be writable).
+    overrides : dict, optional
+        Nested keys replacing those of the scenario (same validation).
+    on_stage : callable, optional
+        ``on_stage(stage, "start" | "done")`` for progress display.
+    on_progress : callable, optional
+        ``on_progress(k, K)`` during localization.
+    """
+    from .certify import certify, write_certificate
+    from .export import VectorLayer, write_cog, write_contours, write_mesh, write_vector_layers
+    from .report import write_report
+
+    scenario = load_scenario(config, overrides)
+    out = ensure_writable_dir(out)
+    seed = int(scenario["seed"])
+    rng = np.random.default_rng(seed)
+    res = RunResult(out=out, scenario=scenario)
+    notify = on_stage or (lambda stage, state: None)
+
+    def stage(name: str):
+        class _Timer:
+            def __enter__(self):
+                notify(name, "start")
+                self.t = time.perf_counter()
+
+            def __exit__(self, *exc):
+                res.timings[name] = round(time.perf_counter() - self.t, 3)
+                if exc[0] is None:
+                    notify(name, "done")
+
+        return _Timer()
+
+    bounds = tuple(float(v) for v in scenario["site"]["bounds"])
+    with stage("plan"):
+        truth = _truth(scenario["site"], seed)
+        plan = _plan(scenario, truth, seed)
+    with stage("simulate"):
+        sensors = SensorSuite.from_dict(scenario["sensors"])
+        log = simulate_traverse(truth, plan, sensors=sensors, seed=seed)
+    with stage("localize"):
+        loc = localize(log, LocalizeParams(**scenario["localize"]), progress=on_progress)
+    with stage("select"):
+        sel_cfg = scenario["select"]
+        sel = select_landmarks(
+            loc,
+            max_sigma=float(sel_cfg["max_sigma_m"]),
+            min_first_seen_distance=float(sel_cfg["min_first_seen_distance_m"]),
+            variance=sel_cfg["variance"],
+        )
+    with stage("reconstruct"):
+        rc = scenario["reconstruct"]
+        grid = Grid.from_bounds(bounds, float(rc["resolution_m"]), scenario["site"]["crs"])
+        coarse = coarse_dem(truth, cells=(8, 8))  # the paper's 64-value satellite DEM
+        shared_z = float(sel.shared_offset_std_m[2])
+        maps = {}
+        for name, mean in (("gp_satellite", TriangulatedMean(coarse)), ("gp_constant", "constant")):
+            gp = TerrainGP(
+                kernel=DEMO_KERNEL,
+                mean=mean,
+                method=rc["method"],
+                max_fit_samples=int(rc["max_fit_samples"]),
+                n_restarts=int(rc["n_restarts"]),
+                seed=seed,
+            ).fit(sel.samples)
+            maps[name] = gp.predict_grid(grid)
+        maps["delaunay"] = delaunay_linear(sel.samples, grid)
+        product = maps["gp_satellite"]
+        product.attrs.update(
+            {
+                "seed": seed,
+                "shared_vertical_offset_std_m": shared_z,
+                "n_landmarks_selected": int(sel.samples.n),
+            }
+        )
+        truth_on_grid = truth.interp(x=grid.x, y=grid.y, method="linear")
+        metrics = {}
+        for name, ds in maps.items():
+            std = ds["elevation_std"].values if "elevation_std" in ds else None
+            metrics[name] = evaluate(ds["elevation"].values, truth_on_grid.values, std)
+    with stage("certify"):
+        cps = _checkpoints(truth, bounds, int(scenario["certify"]["n_checkpoints"]), rng)
+        cert = certify(product, cps, seed=seed, n_boot=int(scenario["certify"]["n_boot"]))
+        cert["scenario"] = scenario
+        cert["truth_metrics"] = metrics
+        cert["localization"] = _localization_summary(loc, sel)
+        write_certificate(cert, out / "certificate.json")
+    with stage("export"):
+        nc = out / "product.nc"
+        with atomic_path(nc) as tmp:
+            product.to_netcdf(tmp, engine="scipy")
+        write_cog(product, out / "elevation.tif")
+        interval = float(cert["contour_interval"]["certified_m"])
+        write_contours(product, out / "contours.gpkg", interval, out / "contours.geojson")
+        if scenario["export"]["mesh"]:
+            write_mesh(product, out / "mesh.ply", out / "mesh.vtp", out / "mesh.png")
+        est = loc.to_projected(loc.keyframe_xyz)
+        true = loc.to_projected(log.truth["xyz"])
+        t = sel.table
+        layers = {
+            "trajectory": VectorLayer.lines([est, true], kind=np.array(["estimated", "true"])),
+            "landmarks": VectorLayer.points(
+                np.column_stack([t["x"], t["y"], t["z"]]),
+                landmark_id=t["landmark_id"],
+                z_std=t["z_std_m"],
+                sigma_max=t["sigma_max_m"],
+                n_views=t["n_views"],
+                kept=t["kept"],
+            ),
+        }
+        write_vector_layers(out / "survey.gpkg", layers, scenario["site"]["crs"])
+    with stage("report"):
+        cov = loc.pose_cov_xyz[:, :2, :2]
+        trajectory = {
+            "xy_est": est[:, :2],
+            "xy_true": true[:, :2],
+            "cov_xy": cov,
+            "landmarks_xy": sel.samples.xy,
+        }
+        write_report(
+            out / "report.html",
+            product=product,
+            certificate=cert,
+            truth=truth_on_grid,
+            samples=sel.samples,
+            trajectory=trajectory,
+            coverage={k: v for k, v in cert["localization"].items() if np.isscalar(v)},
+        )
+    res.summary = {
+        "seed": seed,
+        "rmse_m": metrics["gp_satellite"]["rmse"],
+        "metrics": metrics,
+        "certificate": {k: cert[k] for k in cert if k not in ("scenario", "truth_metrics")},
+        "timings_s": res.timings,
+    }
+    with atomic_path(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(res.summary, indent=2, default=_json_default))
+    res.objects = {
+        "truth": truth,
+        "plan": plan,
+        "log": log,
+        "localization": loc,
+        "selection": sel,
+        "maps": maps,
+    }
+    return res
+
+
+def _json_default(o: Any):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def _localization_summary(loc, sel) -> dict[str, Any]:
+    log = loc.log
+    err = loc.keyframe_xyz - log.truth["xyz"]
+    out = {
+        "keyframes": log.n_keyframes,
+        "duration_s": log.duration_s,
+        "horizontal_rmse_m": float(np.sqrt((err[:, :2] ** 2).sum(1).mean())),
+        "vertical_rmse_m": float(np.sqrt((err[:, 2] ** 2).mean())),
+        "step_median_s": float(np.median(loc.step_s)),
+        "step_p95_s": float(np.percentile(loc.step_s, 95)),
+        "marginals_s": float(loc.marginal_s),
+        "landmarks_in_graph": loc.n_landmarks,
+        "landmarks_selected": int(sel.counts["kept"]),
+        "shared_offset_std_m": [float(v) for v in sel.shared_offset_std_m],
+        "selection_counts": sel.counts,
+        "isam2_rebuilds": loc.n_rebuilds,
+    }
+    if "landmark_xyz" in log.truth and loc.n_landmarks:
+        e = loc.landmark_xyz - loc.true_landmarks()
+        nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])
+        out["landmark_nees_mean"] = float(nees.mean())
+    return out
