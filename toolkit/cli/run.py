@@ -55,8 +55,10 @@ def run_command(
     table = Table(title=f"glacimap run — seed {s['seed']} — {res.out}")
     table.add_column("quantity")
     table.add_column("value", justify="right")
-    lo, hi = cert["rmse_ci95_m"]
-    table.add_row("RMSE vs checkpoints (m)", f"{cert['rmse_m']:.3f} [{lo:.3f}, {hi:.3f}]")
+    lo, hi = cert["accuracy"]["rmse_ci95_m"]
+    table.add_row(
+        "RMSE vs checkpoints (m)", f"{cert['accuracy']['rmse_m']:.3f} [{lo:.3f}, {hi:.3f}]"
+    )
     for name, m in s["metrics"].items():
         table.add_row(f"RMSE vs truth, {name} (m)", f"{m['rmse']:.3f}")
     cov = s["metrics"]["gp_satellite"].get("coverage_95")
