@@ -1,0 +1,127 @@
+"""Scores for localization tracks: horizontal RMSE, NEES, and the GPS-bias accuracy floor.
+
+The floor: a consumer GPS carries a first-order Gauss-Markov bias ``b(t)`` (per axis,
+stationary standard deviation ``sigma_b``, correlation time ``tau``; see
+:class:`factorgraph.sensors.GPSModel`). Odometry and vision measure only relative motion, so
+no fusion of them with that GPS can tell a bias that is constant over the traverse from a
+shift of the whole trajectory: the traverse mean of the bias stays in every estimate. Its
+standard deviation is the floor below which no estimator's absolute error can go on average.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from terrain.errors import bad_input
+
+from .sensors import GPSModel
+
+__all__ = ["bias_floor", "horizontal_floor", "horizontal_rmse", "nees"]
+
+
+def horizontal_rmse(xyz_est: np.ndarray, xyz_true: np.ndarray) -> float:
+    """Root mean square of the horizontal error norm (m).
+
+    Parameters
+    ----------
+    xyz_est, xyz_true : ndarray of shape (K, 2) or (K, 3)
+        Estimated and true positions, local ENU (m); only east and north are used.
+
+    Returns
+    -------
+    float
+        ``sqrt(mean_k (de_k^2 + dn_k^2))`` in metres.
+    """
+    a, b = np.asarray(xyz_est, float), np.asarray(xyz_true, float)
+    if a.ndim != 2 or a.shape[1] < 2 or a.shape != b.shape or a.shape[0] == 0:
+        raise bad_input(
+            "xyz_est", (a.shape, b.shape), "two equal (K >= 1, 2 or 3) arrays", "align tracks"
+        )
+    d = a[:, :2] - b[:, :2]
+    return float(math.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def bias_floor(sigma_b: float, tau_s: float, duration_s: float) -> float:
+    """Standard deviation (m) of the time average of a stationary Gauss-Markov process.
+
+    For ``b`` with autocovariance ``sigma_b^2 exp(-|s|/tau)``, the average
+    ``(1/T) int_0^T b(t) dt`` has variance
+
+    ``2 sigma_b^2 (tau/T) [1 - (tau/T)(1 - exp(-T/tau))]``,
+
+    which tends to ``sigma_b^2 2 tau/T`` for ``T >> tau`` and to ``sigma_b^2`` for ``T << tau``.
+
+    Parameters
+    ----------
+    sigma_b : float
+        Stationary 1-sigma of the bias on one axis (m), >= 0.
+    tau_s : float
+        Correlation time (s), > 0.
+    duration_s : float
+        Averaging time ``T`` (s), > 0: the traverse duration.
+
+    Returns
+    -------
+    float
+        The floor on one axis (m).
+    """
+    for name, v, zero_ok in (
+        ("sigma_b", sigma_b, True),
+        ("tau_s", tau_s, False),
+        ("duration_s", duration_s, False),
+    ):
+        try:
+            ok = math.isfinite(float(v)) and (float(v) >= 0 if zero_ok else float(v) > 0)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            want = "a finite number >= 0" if zero_ok else "a finite number > 0"
+            raise bad_input(name, v, want, "pass the GPS model's value in m or s")
+    r = float(tau_s) / float(duration_s)
+    # -expm1(-1/r) = 1 - exp(-T/tau) without cancellation for T << tau
+    var_frac = 2.0 * r * (1.0 - r * -math.expm1(-1.0 / r))
+    return float(sigma_b) * math.sqrt(max(var_frac, 0.0))
+
+
+def horizontal_floor(gps_model: GPSModel, duration_s: float) -> float:
+    """Horizontal bias floor (m): ``sqrt(floor_e^2 + floor_n^2)`` of :func:`bias_floor`.
+
+    Parameters
+    ----------
+    gps_model : GPSModel
+        Its ``bias_sigma_m`` (east, north) and ``bias_tau_s`` are used.
+    duration_s : float
+        Traverse duration (s).
+    """
+    if not isinstance(gps_model, GPSModel):
+        raise bad_input("gps_model", type(gps_model).__name__, "a GPSModel", "")
+    e, n = (bias_floor(s, gps_model.bias_tau_s, duration_s) for s in gps_model.bias_sigma_m[:2])
+    return math.hypot(e, n)
+
+
+def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Normalised estimation error squared ``e_k^T P_k^-1 e_k`` per row.
+
+    Parameters
+    ----------
+    err : ndarray of shape (n, d)
+        Estimate minus truth (m).
+    cov : ndarray of shape (n, d, d)
+        The estimator's stated covariance of each row (m^2), symmetric positive definite.
+
+    Returns
+    -------
+    ndarray of shape (n,)
+        Chi-square distributed with ``d`` degrees of freedom for a consistent estimator
+        (mean ``d``). Computed by a linear solve, never an explicit inverse.
+    """
+    e, P = np.asarray(err, float), np.asarray(cov, float)
+    if e.ndim != 2 or P.shape != (e.shape[0], e.shape[1], e.shape[1]):
+        raise bad_input("cov", (e.shape, P.shape), "err (n, d) with cov (n, d, d)", "")
+    try:
+        x = np.linalg.solve(P, e[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError as exc:
+        raise bad_input("cov", "a singular matrix", "positive definite covariances", "") from exc
+    return np.einsum("nd,nd->n", e, x)
