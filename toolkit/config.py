@@ -77,16 +77,41 @@ _OPEN_TABLES = {("sensors", "gps"), ("sensors", "odometry"), ("sensors", "camera
 _EXTRA_ALLOWED = {("sensors",): {"odometry", "camera", "gps"}}
 
 
+def _open_table_keys(where: tuple[str, ...]) -> set[str]:
+    """Field names of the dataclass an open table feeds (its values are checked there)."""
+    from dataclasses import fields
+
+    from factorgraph.localize import LocalizeParams
+    from factorgraph.sensors import CameraModel, GPSModel, OdometryModel
+
+    kind = {
+        ("sensors", "gps"): GPSModel,
+        ("sensors", "odometry"): OdometryModel,
+        ("sensors", "camera"): CameraModel,
+        ("localize",): LocalizeParams,
+    }[where]
+    return {f.name for f in fields(kind)}
+
+
+def _unknown(path: str, key: str, allowed: set[str]):
+    close = difflib.get_close_matches(key, sorted(allowed), n=1)
+    hint = f"did you mean '{close[0]}'?" if close else f"known keys: {sorted(allowed)}"
+    return bad_input(path, key, "a known scenario key", hint)
+
+
 def _check(user: dict[str, Any], ref: dict[str, Any], where: tuple[str, ...]) -> None:
     if where in _OPEN_TABLES:
-        return  # validated by the dataclass it feeds (SensorSuite, LocalizeParams)
+        # keys checked here (with a did-you-mean), values by the dataclass they feed
+        allowed = _open_table_keys(where)
+        for key in user:
+            if key not in allowed:
+                raise _unknown(".".join((*where, key)), key, allowed)
+        return
     allowed = set(ref) | _EXTRA_ALLOWED.get(where, set())
     for key, value in user.items():
         path = ".".join((*where, key))
         if key not in allowed:
-            close = difflib.get_close_matches(key, sorted(allowed), n=1)
-            hint = f"did you mean '{close[0]}'?" if close else f"known keys: {sorted(allowed)}"
-            raise bad_input(path, key, "a known scenario key", hint)
+            raise _unknown(path, key, allowed)
         if isinstance(value, dict):
             _check(value, ref.get(key, {}) if isinstance(ref.get(key), dict) else {}, (*where, key))
         elif key in ref and not isinstance(ref[key], dict):
@@ -136,4 +161,26 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         raise bad_input("site.kind", scenario["site"]["kind"], "'default' or 'random'", "")
     if int(scenario["plan"]["n_swaths"]) < 1:
         raise bad_input("plan.n_swaths", scenario["plan"]["n_swaths"], "an integer >= 1", "")
+    _check_models(scenario)
     return scenario
+
+
+def _check_models(scenario: dict[str, Any]) -> None:
+    """Build the sensor models and the estimator settings once, so that a bad value fails
+    at load time (before any work) with the table's name in the message."""
+    from factorgraph.localize import LocalizeParams
+    from factorgraph.sensors import SensorSuite
+    from terrain.errors import InputError
+
+    for table, build in (
+        ("sensors", lambda: SensorSuite.from_dict(scenario["sensors"])),
+        ("localize", lambda: LocalizeParams(**scenario["localize"])),
+    ):
+        try:
+            build()
+        except InputError:
+            raise
+        except (TypeError, ValueError) as exc:
+            raise bad_input(
+                table, scenario[table], "values of the documented types", str(exc)
+            ) from exc

@@ -13,7 +13,9 @@ from typing import Any
 import numpy as np
 
 from factorgraph.localize import LocalizeParams, localize
-from factorgraph.select import select_landmarks
+from factorgraph.log import MeasurementLog
+from factorgraph.result import LocalizationResult
+from factorgraph.select import LandmarkSelection, select_landmarks
 from factorgraph.sensors import SensorSuite
 from factorgraph.simulate import simulate_traverse
 from terrain import Grid, TerrainGP, TriangulatedMean, coarse_dem, delaunay_linear, evaluate
@@ -23,8 +25,22 @@ from terrain.synthetic import default_site, random_terrain
 
 from .config import load_scenario
 from .demo import DEMO_KERNEL
+from .export._files import staged_folder
 
-__all__ = ["RunResult", "STAGES", "run_scenario"]
+__all__ = [
+    "RunResult",
+    "STAGES",
+    "landmark_table",
+    "localization_summary",
+    "localize_log",
+    "make_plan",
+    "make_truth",
+    "run_scenario",
+    "samples_table",
+    "select_samples",
+    "simulate_log",
+    "trajectory_table",
+]
 
 STAGES = ("plan", "simulate", "localize", "select", "reconstruct", "certify", "export", "report")
 
@@ -40,18 +56,23 @@ class RunResult:
     objects: dict[str, Any] = field(default_factory=dict)
 
 
-def _truth(site: dict[str, Any], seed: int):
+def make_truth(scenario: dict[str, Any]):
+    """The true DEM of the scenario's ``[site]`` (``xarray.DataArray``, metres)."""
+    site, seed = scenario["site"], int(scenario["seed"])
     if site["kind"] == "default":
         return default_site(resolution=float(site["truth_resolution_m"]))
     grid = Grid.from_bounds(tuple(site["bounds"]), float(site["truth_resolution_m"]), site["crs"])
     return random_terrain(grid, relief=float(site["relief_m"]), seed=seed, features=True)
 
 
-def _plan(scenario: dict[str, Any], truth, seed: int):
+def make_plan(scenario: dict[str, Any], truth):
+    """The scenario's ``[plan]`` over its site bounds: a lawnmower, or the piecewise-continuous
+    pattern (Eq 10) on the 8 x 8 satellite prior of ``truth``."""
     from survey.lawnmower import lawnmower
     from survey.piecewise import piecewise_continuous
 
     p, bounds = scenario["plan"], tuple(scenario["site"]["bounds"])
+    seed = int(scenario["seed"])
     if p["pattern"] == "lawnmower":
         return lawnmower(
             bounds, int(p["n_swaths"]), margin=float(p["margin_m"]), crs=truth_crs(truth)
@@ -64,6 +85,77 @@ def _plan(scenario: dict[str, Any], truth, seed: int):
 
 def truth_crs(truth) -> str:
     return Grid.from_dataarray(truth).crs.to_string()
+
+
+def simulate_log(scenario: dict[str, Any], truth, plan) -> MeasurementLog:
+    """Drive ``plan`` over ``truth`` with the scenario's ``[sensors]`` and seed."""
+    sensors = SensorSuite.from_dict(scenario["sensors"])
+    return simulate_traverse(truth, plan, sensors=sensors, seed=int(scenario["seed"]))
+
+
+def localize_log(
+    log: MeasurementLog,
+    scenario: dict[str, Any],
+    progress: Callable[[int, int], None] | None = None,
+) -> LocalizationResult:
+    """iSAM2 over ``log`` with the scenario's ``[localize]`` settings."""
+    return localize(log, LocalizeParams(**scenario["localize"]), progress=progress)
+
+
+def select_samples(loc: LocalizationResult, scenario: dict[str, Any]) -> LandmarkSelection:
+    """The paper's landmark rules with the scenario's ``[select]`` settings (Eq 7)."""
+    sel_cfg = scenario["select"]
+    return select_landmarks(
+        loc,
+        max_sigma=float(sel_cfg["max_sigma_m"]),
+        min_first_seen_distance=float(sel_cfg["min_first_seen_distance_m"]),
+        variance=sel_cfg["variance"],
+    )
+
+
+def trajectory_table(loc: LocalizationResult) -> dict[str, np.ndarray]:
+    """One row per keyframe: ``k, t_s``, final estimate ``x, y, z`` (projected CRS, m), its
+    marginal 1-sigma ``std_x, std_y, std_z`` (m), the online estimate ``online_x, online_y,
+    online_z``, the estimated GPS bias ``bias_x, bias_y, bias_z`` (bias model) and, in
+    simulation, the truth ``true_x, true_y, true_z``."""
+    log = loc.log
+    est = loc.to_projected(loc.keyframe_xyz)
+    online = loc.to_projected(loc.online_xyz)
+    std = np.sqrt(np.clip(np.diagonal(loc.pose_cov_xyz, axis1=1, axis2=2), 0.0, None))
+    out: dict[str, np.ndarray] = {"k": np.arange(log.n_keyframes), "t_s": log.t}
+    for i, a in enumerate("xyz"):
+        out[a] = est[:, i]
+    for i, a in enumerate("xyz"):
+        out[f"std_{a}"] = std[:, i]
+    for i, a in enumerate("xyz"):
+        out[f"online_{a}"] = online[:, i]
+    if loc.gps_bias is not None:
+        for i, a in enumerate("xyz"):
+            out[f"bias_{a}"] = loc.gps_bias[:, i]
+    if log.has_truth:
+        true = loc.to_projected(log.truth["xyz"])
+        for i, a in enumerate("xyz"):
+            out[f"true_{a}"] = true[:, i]
+    return out
+
+
+def landmark_table(loc: LocalizationResult, sel: LandmarkSelection) -> dict[str, np.ndarray]:
+    """One row per landmark in the graph: the selection's diagnostics (``landmark_id, x, y, z,
+    sigma_max_m, sigma_max_full_m, z_std_m, first_seen_distance_m, n_views, kept, reason``)
+    and, in simulation, the true position ``true_x, true_y, true_z`` (projected CRS, m)."""
+    out = dict(sel.table)
+    if "landmark_xyz" in loc.log.truth and loc.n_landmarks:
+        true = loc.to_projected(loc.true_landmarks())
+        for i, a in enumerate("xyz"):
+            out[f"true_{a}"] = true[:, i]
+    return out
+
+
+def samples_table(sel: LandmarkSelection) -> dict[str, np.ndarray]:
+    """The selected landmarks as terrain samples ``x, y, z, z_var`` (m, m^2): the table
+    ``glacimap reconstruct SAMPLES.csv`` reads."""
+    s = sel.samples
+    return {"x": s.xy[:, 0], "y": s.xy[:, 1], "z": s.z, "z_var": s.z_var}
 
 
 def _checkpoints(truth, bounds, n: int, rng: np.random.Generator):
@@ -126,21 +218,14 @@ def run_scenario(
 
     bounds = tuple(float(v) for v in scenario["site"]["bounds"])
     with stage("plan"):
-        truth = _truth(scenario["site"], seed)
-        plan = _plan(scenario, truth, seed)
+        truth = make_truth(scenario)
+        plan = make_plan(scenario, truth)
     with stage("simulate"):
-        sensors = SensorSuite.from_dict(scenario["sensors"])
-        log = simulate_traverse(truth, plan, sensors=sensors, seed=seed)
+        log = simulate_log(scenario, truth, plan)
     with stage("localize"):
-        loc = localize(log, LocalizeParams(**scenario["localize"]), progress=on_progress)
+        loc = localize_log(log, scenario, progress=on_progress)
     with stage("select"):
-        sel_cfg = scenario["select"]
-        sel = select_landmarks(
-            loc,
-            max_sigma=float(sel_cfg["max_sigma_m"]),
-            min_first_seen_distance=float(sel_cfg["min_first_seen_distance_m"]),
-            variance=sel_cfg["variance"],
-        )
+        sel = select_samples(loc, scenario)
     with stage("reconstruct"):
         rc = scenario["reconstruct"]
         grid = Grid.from_bounds(bounds, float(rc["resolution_m"]), scenario["site"]["crs"])
@@ -171,63 +256,68 @@ def run_scenario(
         for name, ds in maps.items():
             std = ds["elevation_std"].values if "elevation_std" in ds else None
             metrics[name] = evaluate(ds["elevation"].values, truth_on_grid.values, std)
-    with stage("certify"):
-        cps = _checkpoints(truth, bounds, int(scenario["certify"]["n_checkpoints"]), rng)
-        cert = certify(product, cps, seed=seed, n_boot=int(scenario["certify"]["n_boot"]))
-        cert["scenario"] = scenario
-        cert["truth_metrics"] = metrics
-        cert["localization"] = _localization_summary(loc, sel)
-        write_certificate(cert, out / "certificate.json")
-    with stage("export"):
-        nc = out / "product.nc"
-        with atomic_path(nc) as tmp:
-            product.to_netcdf(tmp, engine="scipy")
-        write_cog(product, out / "elevation.tif")
-        interval = float(cert["contour_interval"]["certified_m"])
-        write_contours(product, out / "contours.gpkg", interval, out / "contours.geojson")
-        if scenario["export"]["mesh"]:
-            write_mesh(product, out / "mesh.ply", out / "mesh.vtp", out / "mesh.png")
-        est = loc.to_projected(loc.keyframe_xyz)
-        true = loc.to_projected(log.truth["xyz"])
-        t = sel.table
-        layers = {
-            "trajectory": VectorLayer.lines([est, true], kind=np.array(["estimated", "true"])),
-            "landmarks": VectorLayer.points(
-                np.column_stack([t["x"], t["y"], t["z"]]),
-                landmark_id=t["landmark_id"],
-                z_std=t["z_std_m"],
-                sigma_max=t["sigma_max_m"],
-                n_views=t["n_views"],
-                kept=t["kept"],
-            ),
+    # Every product is written into a staging folder inside ``out`` and moved into ``out``
+    # only when all of them are complete: a failed run leaves no partial set of products.
+    with staged_folder(out) as tmp_out:
+        with stage("certify"):
+            cps = _checkpoints(truth, bounds, int(scenario["certify"]["n_checkpoints"]), rng)
+            cert = certify(product, cps, seed=seed, n_boot=int(scenario["certify"]["n_boot"]))
+            cert["scenario"] = scenario
+            cert["truth_metrics"] = metrics
+            cert["localization"] = localization_summary(loc, sel)
+            write_certificate(cert, tmp_out / "certificate.json")
+        with stage("export"):
+            with atomic_path(tmp_out / "product.nc") as tmp:
+                product.to_netcdf(tmp, engine="scipy")
+            write_cog(product, tmp_out / "elevation.tif")
+            interval = float(cert["contour_interval"]["certified_m"])
+            geojson = tmp_out / "contours.geojson" if scenario["export"]["geojson"] else None
+            write_contours(product, tmp_out / "contours.gpkg", interval, geojson)
+            if scenario["export"]["mesh"]:
+                write_mesh(
+                    product, tmp_out / "mesh.ply", tmp_out / "mesh.vtp", tmp_out / "mesh.png"
+                )
+            est = loc.to_projected(loc.keyframe_xyz)
+            true = loc.to_projected(log.truth["xyz"])
+            t = sel.table
+            layers = {
+                "trajectory": VectorLayer.lines([est, true], kind=np.array(["estimated", "true"])),
+                "landmarks": VectorLayer.points(
+                    np.column_stack([t["x"], t["y"], t["z"]]),
+                    landmark_id=t["landmark_id"],
+                    z_std=t["z_std_m"],
+                    sigma_max=t["sigma_max_m"],
+                    n_views=t["n_views"],
+                    kept=t["kept"],
+                ),
+            }
+            write_vector_layers(tmp_out / "survey.gpkg", layers, scenario["site"]["crs"])
+        with stage("report"):
+            cov = loc.pose_cov_xyz[:, :2, :2]
+            trajectory = {
+                "xy_est": est[:, :2],
+                "xy_true": true[:, :2],
+                "cov_xy": cov,
+                "landmarks_xy": sel.samples.xy,
+            }
+            write_report(
+                tmp_out / "report.html",
+                product=product,
+                certificate=cert,
+                truth=truth_on_grid,
+                samples=sel.samples,
+                trajectory=trajectory,
+                coverage={k: v for k, v in cert["localization"].items() if np.isscalar(v)},
+            )
+        res.summary = {
+            "seed": seed,
+            "rmse_m": metrics["gp_satellite"]["rmse"],
+            "metrics": metrics,
+            "certificate": {k: cert[k] for k in cert if k not in ("scenario", "truth_metrics")},
+            "timings_s": res.timings,
         }
-        write_vector_layers(out / "survey.gpkg", layers, scenario["site"]["crs"])
-    with stage("report"):
-        cov = loc.pose_cov_xyz[:, :2, :2]
-        trajectory = {
-            "xy_est": est[:, :2],
-            "xy_true": true[:, :2],
-            "cov_xy": cov,
-            "landmarks_xy": sel.samples.xy,
-        }
-        write_report(
-            out / "report.html",
-            product=product,
-            certificate=cert,
-            truth=truth_on_grid,
-            samples=sel.samples,
-            trajectory=trajectory,
-            coverage={k: v for k, v in cert["localization"].items() if np.isscalar(v)},
-        )
-    res.summary = {
-        "seed": seed,
-        "rmse_m": metrics["gp_satellite"]["rmse"],
-        "metrics": metrics,
-        "certificate": {k: cert[k] for k in cert if k not in ("scenario", "truth_metrics")},
-        "timings_s": res.timings,
-    }
-    with atomic_path(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(res.summary, indent=2, default=_json_default))
+        with atomic_path(tmp_out / "summary.json") as tmp:
+            tmp.write_text(json.dumps(res.summary, indent=2, default=_json_default))
     res.objects = {
         "truth": truth,
         "plan": plan,
@@ -247,23 +337,29 @@ def _json_default(o: Any):
     return str(o)
 
 
-def _localization_summary(loc, sel) -> dict[str, Any]:
+def localization_summary(loc: LocalizationResult, sel: LandmarkSelection) -> dict[str, Any]:
+    """Counts, timings and (in simulation) errors of one localization + selection, as plain
+    JSON values: keyframes, duration, horizontal / vertical RMSE of the keyframes against the
+    truth (m), iSAM2 step median / p95 and marginal times (s), landmarks in the graph and
+    selected, the shared-offset 1-sigma (m), the selection counts, rebuilds and landmark NEES."""
     log = loc.log
-    err = loc.keyframe_xyz - log.truth["xyz"]
-    out = {
-        "keyframes": log.n_keyframes,
-        "duration_s": log.duration_s,
-        "horizontal_rmse_m": float(np.sqrt((err[:, :2] ** 2).sum(1).mean())),
-        "vertical_rmse_m": float(np.sqrt((err[:, 2] ** 2).mean())),
-        "step_median_s": float(np.median(loc.step_s)),
-        "step_p95_s": float(np.percentile(loc.step_s, 95)),
-        "marginals_s": float(loc.marginal_s),
-        "landmarks_in_graph": loc.n_landmarks,
-        "landmarks_selected": int(sel.counts["kept"]),
-        "shared_offset_std_m": [float(v) for v in sel.shared_offset_std_m],
-        "selection_counts": sel.counts,
-        "isam2_rebuilds": loc.n_rebuilds,
-    }
+    out: dict[str, Any] = {"keyframes": log.n_keyframes, "duration_s": log.duration_s}
+    if log.has_truth:
+        err = loc.keyframe_xyz - log.truth["xyz"]
+        out["horizontal_rmse_m"] = float(np.sqrt((err[:, :2] ** 2).sum(1).mean()))
+        out["vertical_rmse_m"] = float(np.sqrt((err[:, 2] ** 2).mean()))
+    out.update(
+        {
+            "step_median_s": float(np.median(loc.step_s)),
+            "step_p95_s": float(np.percentile(loc.step_s, 95)),
+            "marginals_s": float(loc.marginal_s),
+            "landmarks_in_graph": loc.n_landmarks,
+            "landmarks_selected": int(sel.counts["kept"]),
+            "shared_offset_std_m": [float(v) for v in sel.shared_offset_std_m],
+            "selection_counts": sel.counts,
+            "isam2_rebuilds": loc.n_rebuilds,
+        }
+    )
     if "landmark_xyz" in log.truth and loc.n_landmarks:
         e = loc.landmark_xyz - loc.true_landmarks()
         nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])

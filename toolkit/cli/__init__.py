@@ -6,10 +6,11 @@ import sys
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from terrain.errors import GlacimapError
 
-from . import certify, export, plan, reconstruct, report, run, sweep
+from . import certify, export, localize, plan, reconstruct, report, run, simulate, sweep
 
 app = typer.Typer(
     name="glacimap",
@@ -27,6 +28,8 @@ def _root() -> None:
 
 app.command("run")(run.run_command)
 app.command("plan")(plan.plan_command)
+app.command("simulate")(simulate.simulate_command)
+app.command("localize")(localize.localize_command)
 app.command("reconstruct")(reconstruct.reconstruct)
 app.command("sweep")(sweep.sweep_command)
 app.command("export")(export.export_command)
@@ -41,7 +44,8 @@ def main() -> None:
     try:
         app(standalone_mode=False)
     except GlacimapError as exc:
-        err_console.print(f"[bold red]error:[/] {exc}")
+        # escape: messages quote user values, and "[table]" would read as rich markup
+        err_console.print(f"[bold red]error:[/] {escape(str(exc))}")
         sys.exit(2)
     except (typer.Abort, KeyboardInterrupt):
         err_console.print("[yellow]aborted[/]")

@@ -22,7 +22,7 @@ def run_command(
     ] = False,
 ) -> None:
     """Plan → simulate → iSAM2 → select → reconstruct → certify → export → report."""
-    from toolkit.config import DEFAULT_TOML
+    from toolkit.config import DEFAULT_TOML, load_scenario
     from toolkit.pipeline import STAGES, run_scenario
 
     console = Console()
@@ -30,6 +30,7 @@ def run_command(
         console.print(DEFAULT_TOML, markup=False, highlight=False)
         raise typer.Exit(0)
     overrides = {"seed": seed} if seed is not None else None
+    load_scenario(config, overrides)  # bad input fails here, before the progress display
     with Progress(
         TextColumn("{task.description:<12}"),
         BarColumn(),

@@ -10,7 +10,7 @@ from pathlib import Path
 from terrain.atomic import atomic_path
 from terrain.errors import bad_input
 
-__all__ = ["atomic_file", "check_target"]
+__all__ = ["atomic_file", "check_target", "staged_folder"]
 
 
 def check_target(path: str | os.PathLike, suffixes: tuple[str, ...], field: str) -> Path:
@@ -76,3 +76,32 @@ def atomic_file(final: Path) -> Iterator[Path]:
             for sidecar in ("-journal", "-wal", "-shm", ".aux.xml"):  # SQLite / GDAL leftovers
                 Path(str(inner) + sidecar).unlink(missing_ok=True)
             raise
+
+
+@contextlib.contextmanager
+def staged_folder(out: Path) -> Iterator[Path]:
+    """Yield a hidden staging folder inside ``out``; on success move every file written there
+    into ``out``, on any error delete it, so a set of products appears together or not at all.
+
+    Each product inside the staging folder is still written atomically; the final moves are
+    renames within one file system. Files of the same name in ``out`` are replaced.
+    """
+    import shutil
+    import tempfile
+
+    out = Path(out)
+    stage = Path(tempfile.mkdtemp(prefix=".staging.", dir=out))
+    try:
+        yield stage
+        names = sorted(p.name for p in stage.iterdir())
+        clash = [n for n in names if (out / n).is_dir()]
+        if clash:
+            raise bad_input(
+                "--out", str(out / clash[0]), "no folder named like a product", "remove it"
+            )
+        for name in names:
+            os.replace(stage / name, out / name)
+        stage.rmdir()
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
