@@ -103,11 +103,13 @@ class VectorLayer:
 
     @classmethod
     def lines(cls, paths: Sequence[Any], **fields: Any) -> VectorLayer:
-        """LineStrings from a sequence of vertex arrays of shape (k_i, 2) or (k_i, 3), k_i >= 2."""
+        """LineStrings from a sequence of vertex arrays of shape (k_i, 2) or (k_i, 3), k_i >= 2;
+        no paths make an empty 2-D ``LineString`` layer (e.g. no contour crosses the map)."""
         arrays = [np.asarray(p, dtype=float) for p in paths]
         if any(a.ndim != 2 or a.shape[0] < 2 or a.shape[1] not in (2, 3) for a in arrays):
             raise bad_input("paths", [a.shape for a in arrays], "(k >= 2, 2 or 3) arrays", "")
-        return cls([shapely.linestrings(a) for a in arrays], fields)
+        gtype = None if arrays else "LineString"
+        return cls([shapely.linestrings(a) for a in arrays], fields, gtype)
 
 
 def _crs(crs: Any) -> CRS:
