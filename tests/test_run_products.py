@@ -344,3 +344,27 @@ def test_certify_bad_inputs_leave_the_folder_empty(run, tmp_path):
     msg = _bad(["certify", bare, good, "--out", target])
     assert msg.startswith("DEM crs") and "gdal_edit" in msg
     assert list(dest.iterdir()) == []
+
+
+@needs_gdal
+def test_contours_of_a_map_no_level_crosses(tmp_path):
+    """A small survey's map can lie between two certified contour levels: the run still writes
+    a valid, empty contour layer (it failed with 'geometry_type' before)."""
+    from pyogrio.raw import read
+
+    from terrain import Grid
+    from terrain.product import terrain_dataset
+    from toolkit.export import write_contours
+
+    grid = Grid.from_bounds(BOUNDS, 10.0)
+    xx, _ = np.meshgrid(grid.x, grid.y)
+    z = 101.0 + 3.0 * (xx - BOUNDS[0]) / 300.0  # 101..104 m: no multiple of 5 m inside
+    ds = terrain_dataset(grid, z, np.full(grid.shape, 0.3), {"seed": 0})
+    res = write_contours(ds, tmp_path / "c.gpkg", 5.0, tmp_path / "c.geojson")
+    assert res["lines"] == 0 and res["levels"] == 0
+    text = subprocess.check_output(["ogrinfo", "-so", "-al", str(tmp_path / "c.gpkg")], text=True)
+    assert "Feature Count: 0" in text and "Geometry: Line String" in text
+    assert "elev: Real" in text and "mean_std: Real" in text
+    _validate_gpkg(tmp_path / "c.gpkg")
+    assert len(read(tmp_path / "c.gpkg", layer="contour")[2]) == 0
+    assert json.loads((tmp_path / "c.geojson").read_text())["features"] == []
