@@ -255,3 +255,23 @@ def test_exit_code_and_message_in_a_shell(tmp_path):
     assert "error: LOG_DIR" in res.stderr and "glacimap simulate" in res.stderr
     assert "Traceback" not in res.stderr
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["nosuch"], "No such command"),
+        (["simulate", "--bogus"], "No such option"),
+        (["localize"], "Missing argument"),
+    ],
+)
+def test_usage_errors_exit_2_without_traceback(tmp_path, args, needle):
+    """typer vendors its own click: its usage errors must still print click's message."""
+    res = subprocess.run(
+        [sys.executable, "-m", "toolkit", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+    )
+    assert res.returncode == 2 and needle in res.stderr and "Traceback" not in res.stderr
