@@ -30,22 +30,13 @@ from .kernels import Kernel, SquaredExponential
 from .likelihood import gaussian_lml
 from .linalg import cholesky_jitter
 from .prior import as_mean_function
-from .product import terrain_dataset
+from .product import software_version, terrain_dataset
 from .samples import ElevationSamples
 from .tiled import TileSpec, long_scale_part, predict_tiled, shortest_lengthscale
 
 __all__ = ["TerrainGP"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("glacimap")
-    except PackageNotFoundError:  # pragma: no cover - running from a source tree
-        return "unknown"
 
 
 class TerrainGP:
@@ -83,6 +74,13 @@ class TerrainGP:
         long-scale kernel part could not be tiled), tiled above (:mod:`terrain.tiled`).
     tiles : TileSpec, optional
         Tile geometry of the tiled GP; default scaled to the shortest length scale.
+    local_amplitude : bool
+        Each tile scales the kernel by its own MAP amplitude (Eq 9 on its samples,
+        :func:`terrain.tiled.local_amplitude`) for terrain whose roughness varies; length
+        scales and noise stay global. Tiled only (``"auto"`` then tiles, ``"exact"`` is
+        rejected). Default off: the stationary GP.
+    amplitude_prior_sd : float
+        Prior sd of a tile's log amplitude around the global fit (1.0: a factor e).
 
     Attributes
     ----------
@@ -116,6 +114,8 @@ class TerrainGP:
         method: str = "auto",
         tiles: TileSpec | None = None,
         exact_max_samples: int = 4000,
+        local_amplitude: bool = False,
+        amplitude_prior_sd: float = 1.0,
     ) -> None:
         self.kernel = kernel
         self.mean = mean
@@ -129,6 +129,8 @@ class TerrainGP:
         self.method = method
         self.tiles = tiles
         self.exact_max_samples = exact_max_samples
+        self.local_amplitude = local_amplitude
+        self.amplitude_prior_sd = amplitude_prior_sd
 
     # -- settings ---------------------------------------------------------------------------
     def _check_settings(self) -> None:
@@ -162,6 +164,11 @@ class TerrainGP:
             raise bad_input("exact_max_samples", self.exact_max_samples, ">= 3", "")
         if self.chunk_size is not None and int(self.chunk_size) < 1:
             raise bad_input("chunk_size", self.chunk_size, ">= 1 or None", "")
+        if self.local_amplitude and self.method == "exact":
+            fix = 'use method="tiled" (or "auto"), or local_amplitude=False'
+            raise bad_input("local_amplitude", True, "the tiled GP", fix)
+        if not (np.isfinite(self.amplitude_prior_sd) and self.amplitude_prior_sd > 0):
+            raise bad_input("amplitude_prior_sd", self.amplitude_prior_sd, "> 0", "e.g. 1.0")
 
     @property
     def fit_nugget(self) -> bool:
@@ -243,6 +250,7 @@ class TerrainGP:
         long_part = long_scale_part(kernel, tiles.halo)
         exact = self.method == "exact" or (
             self.method == "auto"
+            and not self.local_amplitude
             and (
                 samples.n <= self.exact_max_samples
                 or (long_part is not None and samples.n <= 3 * self.exact_max_samples)
@@ -406,6 +414,7 @@ class TerrainGP:
                 self.kernel_,
                 self.tiles_,
                 return_std,
+                amplitude_prior_sd=self.amplitude_prior_sd if self.local_amplitude else None,
             )
             self.tile_stats_ = stats
             mean = np.asarray(self.mean_(xy), dtype=float) + resid_mean
@@ -473,11 +482,8 @@ class TerrainGP:
         hyper["nugget"] = self.nugget_
         method = "exact GP (Rasmussen & Williams Alg. 2.1)"
         if self.method_ == "tiled":
-            t = self.tiles_
-            method = (
-                f"tiled local GP (tile {t.tile:g} m, blend {t.blend:g} m, halo {t.halo:g} m,"
-                f" at most {t.max_points} samples per tile)"
-            )
+            sd = self.amplitude_prior_sd if self.local_amplitude else None
+            method = self.tiles_.describe(sd)
         return {
             "method": method,
             "kernel": repr(self.kernel_),
@@ -489,5 +495,5 @@ class TerrainGP:
             "log_marginal_likelihood": self.log_marginal_likelihood_value_,
             "jitter": self.jitter_,
             "seed": int(self.seed),
-            "software": f"glacimap {_version()}",
+            "software": f"glacimap {software_version()}",
         }

@@ -7,7 +7,17 @@ from typing import Any
 
 from .grid import Grid
 
-__all__ = ["terrain_dataset"]
+__all__ = ["software_version", "terrain_dataset"]
+
+
+def software_version() -> str:
+    """The installed glacimap version ("unknown" when running from a bare source tree)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("glacimap")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
 
 
 def terrain_dataset(grid: Grid, elevation: Any, elevation_std: Any, attrs: dict[str, Any]):
