@@ -53,9 +53,11 @@ class LocalizeParams:
     # Online relinearization (fluid, thresholds above). Off by default: on a full lawnmower the
     # GPS keeps shifting the whole trajectory, relinearization then re-eliminates most of the
     # tree (step times grew to seconds). The online pass then stays linear at the insertion
-    # points and ``final_iterations`` forced relinearizations (Gauss-Newton) finish the job.
+    # points and the batch refinement (factorgraph.refine) takes the final estimate to the MAP.
     relinearize: bool = False
-    final_iterations: int = 3  # extra iSAM2 updates after the last keyframe
+    refine: bool = True  # staged batch refinement after the last keyframe
+    refine_max_iterations: int = 20  # Levenberg-Marquardt steps (each stage)
+    refine_rtol: float = 1e-4  # stop when a step lowers the graph error by less (relative)
 
     def __post_init__(self) -> None:
         if self.gps_model not in ("bias", "white"):
@@ -292,6 +294,7 @@ def localize(
     import gtsam
 
     from .marginals import landmark_marginals
+    from .refine import refine_estimate
 
     params = params or LocalizeParams()
     if not isinstance(log, MeasurementLog):
@@ -425,11 +428,13 @@ def localize(
             progress(k + 1, log.n_keyframes)
     for why in tracks.last_try.values():
         tracks.dropped[why] += 1
-    # Final Gauss-Newton passes: relinearize every variable at the current estimate.
-    for _ in range(params.final_iterations):
-        isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [], None, None, None, True)
     estimate = isam.calculateEstimate()
     graph = history
+    refine_report = None
+    if params.refine:
+        estimate, refine_report = refine_estimate(
+            graph, estimate, bTc, K, params.refine_max_iterations, params.refine_rtol
+        )
     t0 = time.perf_counter()
     marg = landmark_marginals(graph, estimate, log.n_keyframes, sorted(tracks.active), bias_model)
     marginal_s = time.perf_counter() - t0
@@ -444,4 +449,5 @@ def localize(
         n_rebuilds=n_rebuilds,
         step_s=step_s,
         marginal_s=marginal_s,
+        refine=refine_report.as_dict() if refine_report is not None else {},
     )

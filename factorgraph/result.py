@@ -67,6 +67,7 @@ class LocalizationResult:
     marginal_s: float
     bandwidth: int = 0
     n_rebuilds: int = 0  # iSAM2 rebuilds after a failed update (new landmarks dropped)
+    refine: dict = field(default_factory=dict)  # factorgraph.refine.RefineReport.as_dict()
     graph: Any = field(default=None, repr=False)
     estimate: Any = field(default=None, repr=False)
 
@@ -84,6 +85,7 @@ class LocalizationResult:
         step_s,
         marginal_s,
         n_rebuilds=0,
+        refine=None,
     ) -> LocalizationResult:
         import gtsam
 
@@ -117,6 +119,7 @@ class LocalizationResult:
             marginal_s=marginal_s,
             bandwidth=marginals.bandwidth,
             n_rebuilds=n_rebuilds,
+            refine=dict(refine or {}),
             graph=graph,
             estimate=estimate,
         )
