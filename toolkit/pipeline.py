@@ -25,6 +25,7 @@ from terrain.synthetic import default_site, random_terrain
 
 from .config import load_scenario
 from .demo import DEMO_KERNEL
+from .error_budget import inflate_std
 from .export._files import staged_folder
 
 __all__ = [
@@ -232,6 +233,9 @@ def run_scenario(
         coarse = coarse_dem(truth, cells=(8, 8))  # the paper's 64-value satellite DEM
         shared_z = float(sel.shared_offset_std_m[2])
         maps = {}
+        kept = sel.table["kept"]
+        lm_xy = np.column_stack([sel.table["x"][kept], sel.table["y"][kept]])
+        lm_rel_z = sel.table["z_std_m"][kept]  # relative (shared offset removed), Eq 7
         for name, mean in (("gp_satellite", TriangulatedMean(coarse)), ("gp_constant", "constant")):
             gp = TerrainGP(
                 kernel=DEMO_KERNEL,
@@ -241,7 +245,7 @@ def run_scenario(
                 n_restarts=int(rc["n_restarts"]),
                 seed=seed,
             ).fit(sel.samples)
-            maps[name] = gp.predict_grid(grid)
+            maps[name] = inflate_std(gp.predict_grid(grid), gp, lm_xy, lm_rel_z, shared_z)
         maps["delaunay"] = delaunay_linear(sel.samples, grid)
         product = maps["gp_satellite"]
         product.attrs.update(

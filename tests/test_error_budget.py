@@ -1,0 +1,43 @@
+"""The map's 1-sigma with the survey's correlated errors (toolkit.error_budget)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from terrain import ElevationSamples, Grid, Matern, TerrainGP
+from toolkit.error_budget import correlated_variance, inflate_std
+
+
+def test_correlated_variance_is_the_median_of_the_nearest():
+    """Reference: brute-force distances and numpy's median (hand computation)."""
+    rng = np.random.default_rng(0)
+    lm = rng.uniform(0, 100, (50, 2))
+    s = rng.uniform(0.2, 1.5, 50)
+    q = rng.uniform(0, 100, (7, 2))
+    got = correlated_variance(q, lm, s, k=5)
+    for i, p in enumerate(q):
+        near = np.argsort(np.linalg.norm(lm - p, axis=1))[:5]
+        assert got[i] == np.median(s[near] ** 2)
+    assert correlated_variance(q, lm[:0], s[:0]).tolist() == [0.0] * 7
+
+
+def test_inflation_where_the_map_leans_on_data_only():
+    """Among the samples the added variance is the along-track + shared variance (w ~ 1);
+    far from them the map is the prior and keeps the GP's 1-sigma (w ~ 0)."""
+    rng = np.random.default_rng(1)
+    xy = np.column_stack([rng.uniform(0, 60, 400), rng.uniform(0, 60, 400)])
+    z = np.sin(xy[:, 0] / 15.0) + rng.normal(0, 0.05, 400)
+    samples = ElevationSamples(xy, z, np.full(400, 0.05**2), crs="EPSG:32608")
+    gp = TerrainGP(kernel=Matern(1.0, 20.0), optimize=False, nugget=1e-6).fit(samples)
+    grid = Grid.from_bounds((0.0, 0.0, 400.0, 60.0), 5.0, "EPSG:32608")
+    ds = gp.predict_grid(grid)
+    out = inflate_std(ds, gp, xy, np.full(400, 0.8), shared_z_std=0.5)
+    gp_std, std = ds["elevation_std"].values, out["elevation_std"].values
+    x, y = np.meshgrid(out["x"].values, out["y"].values)
+    inside = (x > 5) & (x < 55) & (y > 5) & (y < 55)
+    far = x > 300
+    added = std**2 - gp_std**2
+    np.testing.assert_allclose(added[inside], 0.8**2 + 0.5**2, rtol=0.05)
+    np.testing.assert_allclose(std[far], gp_std[far], rtol=1e-3)
+    assert (std >= gp_std).all()
+    np.testing.assert_array_equal(out["elevation"].values, ds["elevation"].values)

@@ -1,0 +1,109 @@
+"""The map's 1-sigma with the survey's correlated errors put back.
+
+The GP treats every landmark's elevation error as independent (per-point ``z_var``), so a
+cell seen by a hundred landmarks gets a 1-sigma about ten times smaller than one landmark's.
+That is right for the per-landmark part of the error and wrong for the two parts the
+localization shares between landmarks:
+
+* the map-wide rigid offset (the unobservable mean GPS bias; ``shared_offset_std_m``), one
+  number for the whole map;
+* the along-track part: the GPS bias wanders with tau ~ 60 s, so every landmark triangulated
+  from the same minute of driving inherits the same trajectory error. Its size is the
+  landmark's *relative* vertical 1-sigma (the shared offset removed), which on the default
+  survey is ~1 m for almost every landmark -- it is pose error, not triangulation noise.
+
+Neither averages down over neighbours, so both are added to the GP's variance where the map
+leans on the data. How much it leans is the variance the data explained,
+``w = 1 - var_post / var_prior`` (0 far from data, where the map is the satellite prior and
+carries none of the survey's error; ~1 among the landmarks):
+
+    var_map(x) = var_gp(x) + w(x) * (sigma_track(x)^2 + sigma_shared^2)
+
+with ``sigma_track(x)`` the median relative vertical 1-sigma of the ``k`` nearest selected
+landmarks. Measured on the default run (seed 0): 95 % interval coverage of the truth went
+from 0.19 (GP alone) to the value in the run's certificate (see docs/localization.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["correlated_variance", "inflate_std"]
+
+
+def correlated_variance(
+    query_xy: np.ndarray, landmark_xy: np.ndarray, relative_z_std: np.ndarray, k: int = 10
+) -> np.ndarray:
+    """Median relative vertical variance of the ``k`` nearest landmarks, per query point.
+
+    Parameters
+    ----------
+    query_xy : ndarray of shape (m, 2)
+        Projected coordinates (m).
+    landmark_xy : ndarray of shape (n, 2)
+        Selected landmarks, same CRS.
+    relative_z_std : ndarray of shape (n,)
+        Their vertical 1-sigma with the shared offset removed (m).
+    k : int
+        Neighbours (clipped to ``n``).
+
+    Returns
+    -------
+    ndarray of shape (m,)
+        Variance (m^2).
+    """
+    s = np.asarray(relative_z_std, float)
+    if s.size == 0:
+        return np.zeros(len(query_xy))
+    k = max(1, min(int(k), s.size))
+    _, idx = cKDTree(np.asarray(landmark_xy, float)).query(np.asarray(query_xy, float), k=k)
+    idx = np.asarray(idx).reshape(len(query_xy), k)
+    return np.median(s[idx] ** 2, axis=1)
+
+
+def inflate_std(
+    product,
+    gp,
+    landmark_xy: np.ndarray,
+    relative_z_std: np.ndarray,
+    shared_z_std: float,
+    k: int = 10,
+):
+    """Return ``product`` with ``elevation_std`` including the survey's correlated errors.
+
+    Parameters
+    ----------
+    product : xarray.Dataset
+        ``elevation`` and ``elevation_std`` on ``(y, x)``, from ``gp.predict_grid``.
+    gp : terrain.TerrainGP
+        The fitted GP (its kernel gives the prior variance).
+    landmark_xy, relative_z_std : ndarray
+        Selected landmarks and their relative vertical 1-sigma (m).
+    shared_z_std : float
+        1-sigma of the map-wide vertical offset (m).
+
+    Returns
+    -------
+    xarray.Dataset
+        A copy with the inflated ``elevation_std``; ``attrs`` record the method and the
+        median 1-sigma of the GP alone and of the added part.
+    """
+    xx, yy = np.meshgrid(product["x"].values, product["y"].values)
+    q = np.column_stack([xx.ravel(), yy.ravel()])
+    prior = gp.kernel_.diag(q)
+    post = product["elevation_std"].values.ravel() ** 2
+    w = np.clip(1.0 - post / np.maximum(prior, 1e-12), 0.0, 1.0)
+    added = w * (correlated_variance(q, landmark_xy, relative_z_std, k) + float(shared_z_std) ** 2)
+    out = product.copy()
+    out["elevation_std"] = (product["elevation_std"].dims, np.sqrt(post + added).reshape(xx.shape))
+    out["elevation_std"].attrs.update(product["elevation_std"].attrs)
+    out.attrs.update(
+        {
+            "std_error_budget": "GP variance + w * (along-track + shared offset), "
+            "w = 1 - var_post/var_prior (toolkit.error_budget)",
+            "std_gp_median_m": float(np.median(np.sqrt(post))),
+            "std_added_median_m": float(np.median(np.sqrt(added))),
+        }
+    )
+    return out
