@@ -34,6 +34,7 @@ class LocalizeParams:
 
     gps_model: Literal["bias", "white"] = "bias"  # "white": the negative control
     use_landmarks: bool = True
+    use_tilt: bool = True  # attitude factors from the log's gravity direction, when it has one
     huber_k: float = 1.345  # Huber threshold on whitened reprojection error (sigmas)
     min_views: int = 3  # views before a track may be triangulated
     min_parallax_deg: float = 3.0  # widest angle between two viewing rays (deg)
@@ -311,6 +312,10 @@ def localize(
     lm_prior = None
     if params.landmark_prior_sigma_m:
         lm_prior = gtsam.noiseModel.Isotropic.Sigma(3, params.landmark_prior_sigma_m)
+    tilt, tilt_noise, world_up = log.tilt_up, None, gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
+    if params.use_tilt and tilt is not None:
+        sigma = math.radians(log.sensors.tilt.sigma_deg)
+        tilt_noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
     isam_params = _isam_params(params)
     isam = gtsam.ISAM2(isam_params)
     history = gtsam.NonlinearFactorGraph()  # every factor added so far (for a rebuild)
@@ -355,6 +360,8 @@ def localize(
                 phi, q = gm_transition(log.t[k] - log.t[k - 1], gps.bias_sigma_m, gps.bias_tau_s)
                 graph.add(gauss_markov_factor(B(k - 1), B(k), phi, np.maximum(q, 1e-6)))
                 values.insert(B(k), phi * bias_prev)
+        if tilt_noise is not None:  # gravity fixes roll and pitch: R_k^T e_z = measured up
+            graph.add(gtsam.AttitudeFactorPose3(X(k), world_up, tilt_noise, gtsam.Unit3(tilt[k])))
         if k in gps_row:
             z = log.gps_xyz[gps_row[k]]
             if bias_model:

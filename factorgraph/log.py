@@ -12,7 +12,9 @@ File layout (a folder; every table as ``NAME.csv`` or ``NAME.parquet``)
     relative to ``origin`` (projected easting/northing) and 0 m elevation.
 ``keyframes``
     ``k, t_s`` (strictly increasing time, s); optional truth ``true_x, true_y, true_z`` (m) and
-    ``true_roll, true_pitch, true_yaw`` (rad, ZYX body-to-world).
+    ``true_roll, true_pitch, true_yaw`` (rad, ZYX body-to-world); optional ``up_x, up_y, up_z``:
+    the measured gravity "up" direction in the body frame (unit vector; an accelerometer or
+    inclinometer, ``sensors.tilt``).
 ``odometry``
     ``k`` (from keyframe k to k+1), ``rx, ry, rz`` (rotation vector, rad) and ``tx, ty, tz`` (m):
     the measured pose of keyframe k+1 in the body frame of keyframe k.
@@ -103,6 +105,7 @@ class MeasurementLog:
     obs_k: np.ndarray
     obs_id: np.ndarray
     obs_uv: np.ndarray
+    tilt_up: np.ndarray | None = None
     sensors: SensorSuite = field(default_factory=SensorSuite)
     origin: np.ndarray = field(default_factory=lambda: np.zeros(2))
     crs: str = "EPSG:32608"
@@ -129,6 +132,18 @@ class MeasurementLog:
         self.obs_k = _arr("observations.k", self.obs_k, (None,), int)
         self.obs_id = _arr("observations.landmark_id", self.obs_id, (self.obs_k.size,), int)
         self.obs_uv = _arr("observations.uv", self.obs_uv, (self.obs_k.size, 2))
+        if self.tilt_up is not None:
+            up = _arr("keyframes.up", self.tilt_up, (K, 3))
+            norm = np.linalg.norm(up, axis=1)
+            if not (np.abs(norm - 1.0) < 0.1).all():
+                i = int(np.argmax(np.abs(norm - 1.0) >= 0.1))
+                raise bad_input(
+                    "keyframes.up_x/up_y/up_z",
+                    f"|up[{i}]| = {norm[i]:g}",
+                    "unit vectors (gravity direction in the body frame)",
+                    "normalise the accelerometer reading or drop the columns",
+                )
+            self.tilt_up = up / norm[:, None]
         for name, k in (("gps.k", self.gps_k), ("observations.k", self.obs_k)):
             if k.size and (k.min() < 0 or k.max() >= K):
                 raise bad_input(name, (int(k.min()), int(k.max())), f"indices in [0, {K})", "")
@@ -169,6 +184,8 @@ class MeasurementLog:
             kf.update(
                 {f"true_{a}": tr["rpy"][:, i] for i, a in enumerate(("roll", "pitch", "yaw"))}
             )
+        if self.tilt_up is not None:
+            kf.update({f"up_{a}": self.tilt_up[:, i] for i, a in enumerate("xyz")})
         od = {"k": np.arange(K - 1)}
         od.update(
             {n: self.odometry[:, i] for i, n in enumerate(("rx", "ry", "rz", "tx", "ty", "tz"))}
@@ -277,8 +294,11 @@ def read_log(folder: str | Path) -> MeasurementLog:
     if lm is not None:
         truth["landmark_id"] = lm["landmark_id"].to_numpy(int)
         truth["landmark_xyz"] = lm[["true_x", "true_y", "true_z"]].to_numpy(float)
+    up_cols = ["up_x", "up_y", "up_z"]
+    tilt_up = kf[up_cols].to_numpy(float) if set(up_cols) <= set(kf.columns) else None
     return MeasurementLog(
         t=kf["t_s"].to_numpy(float),
+        tilt_up=tilt_up,
         odometry=od[["rx", "ry", "rz", "tx", "ty", "tz"]].to_numpy(float),
         gps_k=gps["k"].to_numpy(int),
         gps_xyz=gps[["x", "y", "z"]].to_numpy(float),

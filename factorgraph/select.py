@@ -81,6 +81,7 @@ def select_landmarks(
     min_first_seen_distance: float = 5.0,
     variance: Literal["eq7", "slope"] = "eq7",
     relative: bool = True,
+    rule: Literal["ellipse", "elevation"] = "ellipse",
 ) -> LandmarkSelection:
     """Apply the paper's selection rules and return terrain samples.
 
@@ -96,6 +97,13 @@ def select_landmarks(
         Elevation variance by Eq 7, or slope-aware (module docstring).
     relative : bool
         Apply ``max_sigma`` to the relative covariance (default) or the full one.
+    rule : {"ellipse", "elevation"}
+        What ``max_sigma`` bounds. ``"ellipse"``: the largest 1-sigma semi-axis of the 3-D
+        ellipsoid (the paper's words). ``"elevation"``: the slope-aware elevation 1-sigma,
+        ``sqrt(var(z - grad z . [x, y]))`` -- the error a landmark puts into an elevation map,
+        horizontal error included where the surface slopes. With consumer GPS the horizontal
+        axes stay near 1 m relative (the bias wanders with tau ~ 60 s), so only the second
+        rule can select anything at 0.5 m (docs/localization.md).
 
     Returns
     -------
@@ -108,6 +116,8 @@ def select_landmarks(
             raise bad_input(name, v, "a finite value >= 0 (m)", "use the paper's 0.5 / 5.0")
     if variance not in ("eq7", "slope"):
         raise bad_input("variance", variance, "'eq7' or 'slope'", "pick one")
+    if rule not in ("ellipse", "elevation"):
+        raise bad_input("rule", rule, "'ellipse' or 'elevation'", "pick one")
     cov_rel, cov_full = result.landmark_cov_relative, result.landmark_cov
     cov = cov_rel if relative else cov_full
 
@@ -119,15 +129,20 @@ def select_landmarks(
     sig_rule = sig if relative else sig_full
     xyz = result.landmark_xyz
     # Eq 7: marginalize x, y out of the landmark covariance -> var(z) = Sigma_zz
-    z_var = cov[:, 2, 2].copy()
-    if variance == "slope" and len(xyz):
+    z_var_eq7 = np.clip(cov[:, 2, 2], 1e-12, None)
+    z_var_slope = z_var_eq7
+    if len(xyz):
         g = local_slopes(xyz)
-        z_var = (
+        z_var_slope = np.clip(
             cov[:, 2, 2]
             - 2 * np.einsum("ni,ni->n", g, cov[:, :2, 2])
-            + np.einsum("ni,nij,nj->n", g, cov[:, :2, :2], g)
+            + np.einsum("ni,nij,nj->n", g, cov[:, :2, :2], g),
+            1e-12,
+            None,
         )
-    z_var = np.clip(z_var, 1e-12, None)
+    z_var = z_var_slope if variance == "slope" else z_var_eq7
+    if rule == "elevation":
+        sig_rule = np.sqrt(z_var_slope)
     reason = np.full(len(xyz), "kept", dtype=object)
     fail_sigma = ~(sig_rule <= max_sigma)
     reason[fail_sigma] = "sigma_above_max"
@@ -159,6 +174,7 @@ def select_landmarks(
         "sigma_max_m": sig,
         "sigma_max_full_m": sig_full,
         "z_std_m": np.sqrt(z_var),
+        "z_std_slope_m": np.sqrt(z_var_slope),
         "first_seen_distance_m": result.first_seen_distance_m,
         "n_views": result.n_views,
         "kept": kept,
@@ -176,6 +192,7 @@ def select_landmarks(
         "min_first_seen_distance_m": float(min_first_seen_distance),
         "variance": variance,
         "relative": bool(relative),
+        "rule": rule,
     }
     shared = np.sqrt(np.clip(np.diag(result.shared_offset_cov), 0.0, None))
     return LandmarkSelection(samples, table, counts, shared, settings)

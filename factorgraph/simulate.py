@@ -245,6 +245,12 @@ def simulate_traverse(
     obs_id = np.concatenate(obs_id)
     obs_uv = np.concatenate(obs_uv)
     seen = np.unique(obs_id)
+    tilt_up = None
+    if sensors.tilt.enabled:  # measured "up" in the body frame, drawn last (streams above fixed)
+        tilt_noise = np.zeros((K, 3))
+        tilt_noise[:, :2] = rng.normal(0.0, math.radians(sensors.tilt.sigma_deg), (K, 2))
+        up_true = R[:, 2, :]  # R_k^T e_z: world up seen in the body frame
+        tilt_up = Rotation.from_rotvec(tilt_noise).apply(up_true)
     rpy = Rotation.from_matrix(R).as_euler("ZYX")[:, ::-1]  # roll, pitch, yaw
     truth = {
         "xyz": p,
@@ -261,6 +267,7 @@ def simulate_traverse(
         obs_k=obs_k,
         obs_id=obs_id,
         obs_uv=obs_uv,
+        tilt_up=tilt_up,
         sensors=sensors,
         origin=origin,
         crs=crs or grid.crs.to_string(),

@@ -47,13 +47,17 @@ bias_tau_s = 60.0
 [sensors.camera]
 texture_density_per_m2 = 0.05
 
+[sensors.tilt]                 # accelerometer / inclinometer: gravity direction per keyframe
+sigma_deg = 0.5
+
 [localize]
 gps_model = "bias"             # "white" is the negative control
 
 [select]
-max_sigma_m = 2.0              # paper: 0.5 m; our iSAM2 landmarks reach ~1-2 m yet (issue 4)
+max_sigma_m = 0.5              # the paper's 1-sigma limit, on the relative covariance
+rule = "elevation"             # what it bounds: "elevation" (slope-aware z) or "ellipse" (3-D)
 min_first_seen_distance_m = 5.0
-variance = "eq7"               # or "slope"
+variance = "slope"             # sample variance: "slope" (var(z - grad z.[x,y])) or "eq7"
 
 [reconstruct]
 resolution_m = 2.0             # output grid cell (m)
@@ -73,8 +77,14 @@ geojson = true
 DEFAULT_SCENARIO: dict[str, Any] = tomllib.loads(DEFAULT_TOML)
 
 # Keys accepted inside [sensors.*] beyond those in the default (checked by the sensor models).
-_OPEN_TABLES = {("sensors", "gps"), ("sensors", "odometry"), ("sensors", "camera"), ("localize",)}
-_EXTRA_ALLOWED = {("sensors",): {"odometry", "camera", "gps"}}
+_OPEN_TABLES = {
+    ("sensors", "gps"),
+    ("sensors", "odometry"),
+    ("sensors", "camera"),
+    ("sensors", "tilt"),
+    ("localize",),
+}
+_EXTRA_ALLOWED = {("sensors",): {"odometry", "camera", "gps", "tilt"}}
 
 
 def _open_table_keys(where: tuple[str, ...]) -> set[str]:
@@ -82,12 +92,13 @@ def _open_table_keys(where: tuple[str, ...]) -> set[str]:
     from dataclasses import fields
 
     from factorgraph.localize import LocalizeParams
-    from factorgraph.sensors import CameraModel, GPSModel, OdometryModel
+    from factorgraph.sensors import CameraModel, GPSModel, OdometryModel, TiltModel
 
     kind = {
         ("sensors", "gps"): GPSModel,
         ("sensors", "odometry"): OdometryModel,
         ("sensors", "camera"): CameraModel,
+        ("sensors", "tilt"): TiltModel,
         ("localize",): LocalizeParams,
     }[where]
     return {f.name for f in fields(kind)}

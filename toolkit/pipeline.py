@@ -111,6 +111,7 @@ def select_samples(loc: LocalizationResult, scenario: dict[str, Any]) -> Landmar
         max_sigma=float(sel_cfg["max_sigma_m"]),
         min_first_seen_distance=float(sel_cfg["min_first_seen_distance_m"]),
         variance=sel_cfg["variance"],
+        rule=sel_cfg["rule"],
     )
 
 

@@ -124,6 +124,10 @@ def localize_command(
     variance: Annotated[
         str | None, typer.Option(help="Select: elevation variance, eq7 or slope.")
     ] = None,
+    rule: Annotated[
+        str | None,
+        typer.Option(help="Select: what --max-sigma bounds, elevation (slope-aware) or ellipse."),
+    ] = None,
     fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
 ) -> None:
     """Fuse a measurement log in iSAM2 (GPS with bias states, odometry, camera landmarks),
@@ -151,6 +155,7 @@ def localize_command(
             ("max_sigma_m", max_sigma),
             ("min_first_seen_distance_m", min_first_seen),
             ("variance", variance),
+            ("rule", rule),
         )
         if value is not None
     }
@@ -158,6 +163,8 @@ def localize_command(
     sel_cfg = scenario["select"]  # checked here, before the (long) localization
     if sel_cfg["variance"] not in ("eq7", "slope"):
         raise bad_input("--variance", sel_cfg["variance"], "eq7 or slope", "")
+    if sel_cfg["rule"] not in ("elevation", "ellipse"):
+        raise bad_input("--rule", sel_cfg["rule"], "elevation or ellipse", "")
     for opt, key in (
         ("--max-sigma", "max_sigma_m"),
         ("--min-first-seen", "min_first_seen_distance_m"),
