@@ -10,9 +10,9 @@ $(STAMP): pyproject.toml scripts/setup.sh scripts/apt-packages.txt
 	bash scripts/setup.sh $(VENV)
 	touch $(STAMP)
 
-## the main job on the embedded default scenario
+## the main job on the embedded default scenario: plan -> traverse -> iSAM2 -> GP -> certify -> products
 demo: setup
-	$(BIN)/glacimap reconstruct --demo --out out/demo
+	$(BIN)/glacimap run --out out/run
 
 ## lint + the default test suite (< 10 min on 2 cores)
 test: setup lint
@@ -36,6 +36,7 @@ bench: setup
 	$(BIN)/python benchmarks/planners.py --out benchmarks/results/planners.json
 	$(BIN)/python benchmarks/gp_scalable.py --out benchmarks/results/gp_scalable.json
 	$(BIN)/python benchmarks/emcee_posterior.py --out benchmarks/results/emcee_posterior.json
+	$(BIN)/python benchmarks/localization.py --out benchmarks/results/localization.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

@@ -6,6 +6,13 @@ stationary standard deviation ``sigma_b``, correlation time ``tau``; see
 no fusion of them with that GPS can tell a bias that is constant over the traverse from a
 shift of the whole trajectory: the traverse mean of the bias stays in every estimate. Its
 standard deviation is the floor below which no estimator's absolute error can go on average.
+
+:func:`bias_floor` / :func:`horizontal_floor` give that floor as the standard deviation of the
+continuous time average of ``b`` (the issue's definition). :func:`offset_floor` is the exact
+floor for the sampled problem: the standard deviation of the best linear unbiased (generalised
+least squares) estimate of a constant position offset from the GPS fixes actually received,
+white noise and dropouts included. The two differ: the time average is not the best weighting
+of a Gauss-Markov record, and the white noise adds ``sigma_white^2 / n``.
 """
 
 from __future__ import annotations
@@ -18,7 +25,14 @@ from terrain.errors import bad_input
 
 from .sensors import GPSModel
 
-__all__ = ["bias_floor", "horizontal_floor", "horizontal_rmse", "nees"]
+__all__ = [
+    "bias_floor",
+    "gls_offset_sd",
+    "horizontal_floor",
+    "horizontal_rmse",
+    "nees",
+    "offset_floor",
+]
 
 
 def horizontal_rmse(xyz_est: np.ndarray, xyz_true: np.ndarray) -> float:
@@ -125,3 +139,106 @@ def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
     except np.linalg.LinAlgError as exc:
         raise bad_input("cov", "a singular matrix", "positive definite covariances", "") from exc
     return np.einsum("nd,nd->n", e, x)
+
+
+def gls_offset_sd(
+    fix_times_s: np.ndarray, sigma_b: float, tau_s: float, sigma_white: float
+) -> float:
+    """Standard deviation (m) of the GLS estimate of a constant offset on one axis.
+
+    Observations ``y_i = p0 + b(t_i) + v_i`` at times ``t_i``: ``b`` a stationary first-order
+    Gauss-Markov process (covariance ``sigma_b^2 exp(-|t_i - t_j| / tau)``), ``v`` white
+    (``sigma_white^2``). With ``C = C_b + sigma_white^2 I`` the best linear unbiased estimate of
+    ``p0`` (the MAP under a flat prior, the data being Gaussian) has variance
+
+    ``1 / (1^T C^-1 1)``,
+
+    computed here with a Cholesky factorisation of ``C`` (``scipy.linalg.cho_factor``; O(n^3)
+    time, O(n^2) memory: 2,000 fixes take ~0.2 s and 32 MB).
+
+    Parameters
+    ----------
+    fix_times_s : array_like of shape (n,)
+        Times of the fixes received (s), n >= 1, any order; gaps (dropouts) simply have none.
+    sigma_b : float
+        Stationary 1-sigma of the bias (m), >= 0.
+    tau_s : float
+        Bias correlation time (s), > 0.
+    sigma_white : float
+        White-noise 1-sigma (m), >= 0.
+
+    Returns
+    -------
+    float
+        The standard deviation (m); 0.0 when both noise levels are 0.
+    """
+    from scipy.linalg import cho_factor, cho_solve
+
+    t = np.asarray(fix_times_s, float)
+    if t.ndim != 1 or t.size == 0 or not np.isfinite(t).all():
+        raise bad_input(
+            "fix_times_s", t.shape, "a 1-D array of >= 1 finite times (s)", "pass log.t[log.gps_k]"
+        )
+    for name, v, zero_ok in (
+        ("sigma_b", sigma_b, True),
+        ("tau_s", tau_s, False),
+        ("sigma_white", sigma_white, True),
+    ):
+        try:
+            ok = math.isfinite(float(v)) and (float(v) >= 0 if zero_ok else float(v) > 0)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            want = "a finite number >= 0" if zero_ok else "a finite number > 0"
+            raise bad_input(name, v, want, "pass the GPS model's value in m or s")
+    sb2, sv2 = float(sigma_b) ** 2, float(sigma_white) ** 2
+    if sb2 == 0.0 and sv2 == 0.0:
+        return 0.0
+    if sb2 == 0.0:  # white noise only: the plain mean, no matrix needed
+        return math.sqrt(sv2 / t.size)
+    C = sb2 * np.exp(-np.abs(t[:, None] - t[None, :]) / float(tau_s))
+    C[np.diag_indices_from(C)] += sv2
+    x = cho_solve(cho_factor(C, lower=True), np.ones(t.size))
+    return 1.0 / math.sqrt(float(x.sum()))
+
+
+def offset_floor(gps_model: GPSModel, fix_times_s: np.ndarray, axes: bool = False):
+    """Exact horizontal accuracy floor (m) of a constant position offset from GPS fixes.
+
+    The standard deviation of the best (GLS) estimate of a constant offset ``p0`` from fixes
+    ``y_i = p0 + b(t_i) + v_i`` at the fix times actually received (:func:`gls_offset_sd` per
+    axis, with the model's ``bias_sigma_m``, ``bias_tau_s`` and ``sigma_white_m``). It is what an
+    estimator that knew the relative path perfectly (no odometry or vision error) would reach;
+    one that must also estimate the path's shape, scale or heading cannot do better on
+    average. Dropouts count because only the fixes received enter. Unlike
+    :func:`horizontal_floor` (time average of the bias alone), it includes the white noise and
+    the optimal weighting of a Gauss-Markov record, which lies below the plain time average:
+    without white noise it is the smaller of the two.
+
+    Parameters
+    ----------
+    gps_model : GPSModel
+        Noise model of the fixes.
+    fix_times_s : array_like of shape (n,)
+        Times of the fixes received (s), e.g. ``log.t[log.gps_k]``.
+    axes : bool
+        Return the per-axis values instead.
+
+    Returns
+    -------
+    float or ndarray of shape (3,)
+        ``sqrt(var_e + var_n)`` in metres; with ``axes=True`` the three per-axis standard
+        deviations (east, north, up; m).
+    """
+    if not isinstance(gps_model, GPSModel):
+        raise bad_input("gps_model", type(gps_model).__name__, "a GPSModel", "")
+    cache: dict[tuple[float, float], float] = {}
+    sd = []
+    n_axes = 3 if axes else 2  # the vertical costs a factorisation only when asked for
+    for sb, sv in zip(gps_model.bias_sigma_m[:n_axes], gps_model.sigma_white_m, strict=False):
+        if (sb, sv) not in cache:
+            cache[sb, sv] = gls_offset_sd(fix_times_s, sb, gps_model.bias_tau_s, sv)
+        sd.append(cache[sb, sv])
+    if axes:
+        return np.array(sd)
+    return math.hypot(sd[0], sd[1])
