@@ -4,7 +4,8 @@ Method (Schur complement through each landmark's own information block)
 -----------------------------------------------------------------------
 Linearize the whole graph at the final estimate (robust kernels reweighted there, as
 ``gtsam.Marginals`` does). Order the variables as landmarks ``l`` and the pose system ``p``
-(per keyframe: Pose3 tangent [rotation, translation] and, with the bias model, the GPS bias).
+(per keyframe: Pose3 tangent [rotation, translation], with the bias model the GPS bias, with
+the drift model the odometry drift state [scale, heading rate]).
 The information matrix is ``[[A, B], [B^T, H]]`` with ``A`` block-diagonal (one 3x3 per
 landmark). Then, exactly,
 
@@ -45,7 +46,17 @@ class LandmarkMarginals:
     bandwidth: int  # W, keyframes spanned by the widest landmark window
 
 
-def _factor_blocks(graph, values, n_kf: int, lm_index: dict[int, int], d: int):
+def _layout(bias_model: bool, drift_model: bool) -> dict[str, tuple[int, int]]:
+    """Per-keyframe state layout: symbol -> (offset, dimension) inside a keyframe's block."""
+    out, d = {"x": (0, 6)}, 6
+    if bias_model:
+        out["b"], d = (d, 3), d + 3
+    if drift_model:
+        out["d"] = (d, 2)
+    return out
+
+
+def _factor_blocks(graph, values, lm_index: dict[int, int], layout: dict[str, tuple[int, int]]):
     """Split the linearized graph into projection factors and pose-system factors."""
     import gtsam
 
@@ -68,12 +79,10 @@ def _factor_blocks(graph, values, n_kf: int, lm_index: dict[int, int], d: int):
             if ch == "l":
                 lm_col = (c0, lm_index[idx])
                 c0 += 3
-            elif ch == "x":
-                cols.append((c0, idx, 0, 6))
-                c0 += 6
-            else:  # bias
-                cols.append((c0, idx, 6, 3))
-                c0 += 3
+            else:  # a per-keyframe state: pose, GPS bias or odometry drift
+                off, dim = layout[ch]
+                cols.append((c0, idx, off, dim))
+                c0 += dim
         if lm_col is not None and not cols:  # landmark prior
             Al_only = A[:, lm_col[0] : lm_col[0] + 3]
             lm_prior.append((lm_col[1], Al_only.T @ Al_only))
@@ -139,7 +148,9 @@ def _block_tridiag_solve(G, E, rhs: list[np.ndarray]) -> list[np.ndarray]:
     return x
 
 
-def landmark_marginals(graph, values, n_keyframes: int, landmark_ids, bias_model: bool):
+def landmark_marginals(
+    graph, values, n_keyframes: int, landmark_ids, bias_model: bool, drift_model: bool = False
+):
     """Marginal covariances of every landmark (and keyframe position) at ``values``.
 
     Parameters
@@ -154,6 +165,8 @@ def landmark_marginals(graph, values, n_keyframes: int, landmark_ids, bias_model
         Landmark indices ``l{id}`` present in the graph, in the output order.
     bias_model : bool
         Whether GPS bias states ``b{k}`` exist.
+    drift_model : bool
+        Whether odometry drift states ``d{k}`` (Point2) exist.
 
     Returns
     -------
@@ -162,11 +175,12 @@ def landmark_marginals(graph, values, n_keyframes: int, landmark_ids, bias_model
     import gtsam
     from threadpoolctl import threadpool_limits
 
-    K, d = n_keyframes, 9 if bias_model else 6
+    layout = _layout(bias_model, drift_model)
+    K, d = n_keyframes, sum(dim for _, dim in layout.values())
     ids = list(landmark_ids)
     lm_index = {lid: j for j, lid in enumerate(ids)}
     nL = len(ids)
-    Ax, Al, pk, pj, other, lm_prior = _factor_blocks(graph, values, K, lm_index, d)
+    Ax, Al, pk, pj, other, lm_prior = _factor_blocks(graph, values, lm_index, layout)
     # Landmark information blocks A_l and couplings B_l (per observation).
     A = np.zeros((nL, 3, 3))
     np.add.at(A, pj, np.einsum("nri,nrj->nij", Al, Al))

@@ -104,7 +104,7 @@ def levenberg_marquardt(
     import gtsam
 
     keys = list(values.keys())
-    dims = [6 if _symbol_char(k) == "x" else 3 for k in keys]  # Pose3 or Point3
+    dims = [{"x": 6, "d": 2}.get(_symbol_char(k), 3) for k in keys]  # Pose3, Point2, Point3
     ordering = gtsam.Ordering.ColamdNonlinearFactorGraph(graph)
     unit = {d: gtsam.noiseModel.Unit.Create(d) for d in set(dims)}
     err = graph.error(values)
@@ -199,16 +199,15 @@ def refine_estimate(
     """
     import gtsam
 
+    from .localize import value_at
+
     t0 = time.perf_counter()
     rep = RefineReport(error_online=graph.error(estimate))
     pose_graph, landmark_factors = split_landmark_factors(graph)
     poses = gtsam.Values()
     for key in estimate.keys():
-        ch = _symbol_char(key)
-        if ch == "x":
-            poses.insert(key, estimate.atPose3(key))
-        elif ch != "l":  # GPS bias
-            poses.insert(key, estimate.atPoint3(key))
+        if _symbol_char(key) != "l":  # poses, GPS biases, odometry drift
+            poses.insert(key, value_at(estimate, key))
     poses, rep.iterations_pose_system, pe = levenberg_marquardt(
         pose_graph, poses, max_iterations, rtol
     )

@@ -28,6 +28,9 @@ class LocalizationResult:
         Marginal covariance of each keyframe position at the final estimate (m^2).
     gps_bias : ndarray of shape (K, 3) or None
         Estimated GPS bias (bias model only).
+    odometry_drift : ndarray of shape (K, 2) or None
+        Estimated odometry drift per keyframe: scale error (fraction) and heading rate (rad / m)
+        (``LocalizeParams.odometry_drift`` only).
     landmark_id : ndarray of shape (L,)
         Track ids of the landmarks kept in the graph.
     landmark_xyz : ndarray of shape (L, 3)
@@ -55,6 +58,7 @@ class LocalizationResult:
     online_xyz: np.ndarray
     pose_cov_xyz: np.ndarray
     gps_bias: np.ndarray | None
+    odometry_drift: np.ndarray | None
     landmark_id: np.ndarray
     landmark_xyz: np.ndarray
     landmark_cov: np.ndarray
@@ -93,9 +97,12 @@ class LocalizationResult:
         K = log.n_keyframes
         poses = [estimate.atPose3(X(k)) for k in range(K)]
         ids = np.array(sorted(tracks.active), dtype=int)
-        bias = None
+        bias = drift = None
         if params.gps_model == "bias":
             bias = np.array([estimate.atPoint3(B(k)) for k in range(K)])
+        if getattr(params, "odometry_drift", False):
+            Dk = gtsam.symbol_shorthand.D
+            drift = np.array([estimate.atPoint2(Dk(k)) for k in range(K)])
         views = np.bincount(
             np.searchsorted(ids, log.obs_id[np.isin(log.obs_id, ids)]), minlength=ids.size
         )
@@ -107,6 +114,7 @@ class LocalizationResult:
             online_xyz=online_xyz,
             pose_cov_xyz=marginals.pose_cov_xyz,
             gps_bias=bias,
+            odometry_drift=drift,
             landmark_id=ids,
             landmark_xyz=np.array([estimate.atPoint3(L(i)) for i in ids]).reshape(-1, 3),
             landmark_cov=marginals.landmark_cov,

@@ -258,6 +258,7 @@ def simulate_traverse(
         "gps_bias": bias_all[gk],
         "landmark_id": seen,
         "landmark_xyz": pts[seen],
+        "odometry_drift": np.array([scale - 1.0, drift]),  # scale error, heading rate (rad / m)
     }
     return MeasurementLog(
         t=t,
