@@ -199,7 +199,7 @@ def refine_estimate(
     """
     import gtsam
 
-    from .localize import value_at
+    from .rebuild import value_at
 
     t0 = time.perf_counter()
     rep = RefineReport(error_online=graph.error(estimate))
