@@ -35,6 +35,21 @@ __all__ = [
 ]
 
 
+def _check_noise_params(params) -> None:
+    """Raise the one error for a non-finite or out-of-range noise parameter.
+
+    ``params``: ``(name, value, zero_ok)`` triples; ``zero_ok`` allows 0, else value > 0.
+    """
+    for name, v, zero_ok in params:
+        try:
+            ok = math.isfinite(float(v)) and (float(v) >= 0 if zero_ok else float(v) > 0)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            want = "a finite number >= 0" if zero_ok else "a finite number > 0"
+            raise bad_input(name, v, want, "pass the GPS model's value in m or s")
+
+
 def horizontal_rmse(xyz_est: np.ndarray, xyz_true: np.ndarray) -> float:
     """Root mean square of the horizontal error norm (m).
 
@@ -81,18 +96,9 @@ def bias_floor(sigma_b: float, tau_s: float, duration_s: float) -> float:
     float
         The floor on one axis (m).
     """
-    for name, v, zero_ok in (
-        ("sigma_b", sigma_b, True),
-        ("tau_s", tau_s, False),
-        ("duration_s", duration_s, False),
-    ):
-        try:
-            ok = math.isfinite(float(v)) and (float(v) >= 0 if zero_ok else float(v) > 0)
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            want = "a finite number >= 0" if zero_ok else "a finite number > 0"
-            raise bad_input(name, v, want, "pass the GPS model's value in m or s")
+    _check_noise_params(
+        (("sigma_b", sigma_b, True), ("tau_s", tau_s, False), ("duration_s", duration_s, False))
+    )
     r = float(tau_s) / float(duration_s)
     # -expm1(-1/r) = 1 - exp(-T/tau) without cancellation for T << tau
     var_frac = 2.0 * r * (1.0 - r * -math.expm1(-1.0 / r))
@@ -179,18 +185,9 @@ def gls_offset_sd(
         raise bad_input(
             "fix_times_s", t.shape, "a 1-D array of >= 1 finite times (s)", "pass log.t[log.gps_k]"
         )
-    for name, v, zero_ok in (
-        ("sigma_b", sigma_b, True),
-        ("tau_s", tau_s, False),
-        ("sigma_white", sigma_white, True),
-    ):
-        try:
-            ok = math.isfinite(float(v)) and (float(v) >= 0 if zero_ok else float(v) > 0)
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            want = "a finite number >= 0" if zero_ok else "a finite number > 0"
-            raise bad_input(name, v, want, "pass the GPS model's value in m or s")
+    _check_noise_params(
+        (("sigma_b", sigma_b, True), ("tau_s", tau_s, False), ("sigma_white", sigma_white, True))
+    )
     sb2, sv2 = float(sigma_b) ** 2, float(sigma_white) ** 2
     if sb2 == 0.0 and sv2 == 0.0:
         return 0.0
