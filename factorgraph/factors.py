@@ -71,43 +71,54 @@ def drift_odometry_factor(
 
     The odometer reports ``M = (R_m, t_m)`` (body frame of the earlier keyframe) with
     ``R_m = R_true Exp(n_r + [0, 0, w d])`` and ``t_m = (1 + s) t_true + n_t``, ``d = |t_m|``
-    the step length (m): the drift model of :class:`factorgraph.sensors.OdometryModel`. With
-    the drift state ``D = (s, w)`` (a ``Point2``) the corrected measurement is
-    ``M_c = (R_m Exp([0, 0, -w d]), t_m / (1 + s))`` and the error, as in GTSAM's
-    ``BetweenFactorPose3``, is ``e = Log(M_c^-1 T1^-1 T2)`` (tangent order rotation,
-    translation; whitened by ``sigmas``, the white part of the odometry noise only).
+    the step length (m): the drift model of :class:`factorgraph.sensors.OdometryModel`. The
+    factor predicts the measurement from the two poses ``T1, T2`` and the drift state
+    ``D = (s, w)`` (a ``Point2``), ``h = (R_12 Exp([0, 0, w d]), (1 + s) t_12)`` with
+    ``(R_12, t_12) = T1^-1 T2``, and its error, as in GTSAM's ``BetweenFactorPose3``, is
+    ``e = Log(M^-1 h)`` (tangent order rotation, translation), whitened by ``sigmas``, the
+    white part of the odometry noise.
 
-    Jacobians (right perturbations, ``J = Jr^-1(e)`` = ``Pose3.LogmapDerivative``,
-    ``E = M_c^-1 T1^-1 T2``, ``Ad`` the adjoint):
-    ``de/dT2 = J``; ``de/dT1 = -J Ad(T2^-1 T1)``; a perturbation ``xi`` of ``M_c`` gives
-    ``-J Ad(E^-1) xi``, with ``xi = (0, 0, -d, 0, 0, 0)`` per unit ``w`` and
-    ``xi = (0, 0, 0, -R_c^T t_c / (1 + s))`` per unit ``s``.
+    The drift acts on the prediction, not on the measurement: correcting the measurement
+    instead (``t_m / (1 + s)`` against ``t_12`` at fixed sigmas) also divides its noise by
+    ``1 + s``, so every unit of ``s`` buys a smaller whitened error. Measured with that form:
+    the trajectory shrank by 5 % on a 620 m traverse with the GPS bias model (the scale
+    state read 5.4 % against 0.13 % true); the odometry's noise term alone pays
+    ``sum |n_t|^2 / (1 + s)^2`` in that form.
+
+    Jacobians (right perturbations, ``J = Jr^-1(e)`` = ``Pose3.LogmapDerivative(M^-1 h)``):
+    a right perturbation ``xi = (phi, rho)`` of ``T1^-1 T2`` moves ``h`` by
+    ``A xi``, ``A = diag(Rz^T, (1 + s) Rz^T)``, ``Rz = Exp([0, 0, w d])``; hence
+    ``de/dT2 = J A``, ``de/dT1 = -J A Ad((T1^-1 T2)^-1)``; ``de/ds = J (0, R_h^T t_12)`` and
+    ``de/dw = J (0, 0, d, 0, 0, 0)``.
     """
     import gtsam
 
-    R_m = gtsam.Rot3.Expmap(np.asarray(measured[:3], float))
-    t_m = np.asarray(measured[3:], float)
-    d = float(np.linalg.norm(t_m))
+    M_inv = gtsam.Pose3(gtsam.Rot3.Expmap(np.asarray(measured[:3], float)), measured[3:]).inverse()
+    d = float(np.linalg.norm(np.asarray(measured[3:], float)))
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float))
 
     def error(this, values, jacobians):
         T1 = values.atPose3(this.keys()[0])
         T2 = values.atPose3(this.keys()[1])
         s, w = values.atPoint2(this.keys()[2])
-        R_c = R_m.compose(gtsam.Rot3.Rz(-w * d))
-        t_c = t_m / (1.0 + s)
-        M_c = gtsam.Pose3(R_c, t_c)
         hx = T1.between(T2)
-        E = M_c.between(hx)
+        Rz = gtsam.Rot3.Rz(w * d)
+        R_h = hx.rotation().compose(Rz)
+        h = gtsam.Pose3(R_h, (1.0 + s) * hx.translation())
+        E = M_inv.compose(h)
         e = gtsam.Pose3.Logmap(E)
         if jacobians is not None:
             J = gtsam.Pose3.LogmapDerivative(E)
-            jacobians[0] = -J @ hx.inverse().AdjointMap()
-            jacobians[1] = J
+            A = np.zeros((6, 6))
+            A[:3, :3] = Rz.matrix().T
+            A[3:, 3:] = (1.0 + s) * Rz.matrix().T
+            JA = J @ A
+            jacobians[0] = -JA @ hx.inverse().AdjointMap()
+            jacobians[1] = JA
             xi = np.zeros((6, 2))
-            xi[3:, 0] = -R_c.matrix().T @ t_c / (1.0 + s)
-            xi[2, 1] = -d
-            jacobians[2] = -J @ E.inverse().AdjointMap() @ xi
+            xi[3:, 0] = R_h.matrix().T @ hx.translation()
+            xi[2, 1] = d
+            jacobians[2] = J @ xi
         return e
 
     return gtsam.CustomFactor(noise, [prev_key, next_key, drift_key], error)

