@@ -240,36 +240,29 @@ def case_biased10(seeds: list[int]) -> dict[str, Any]:
     return {"case": "biased10", "seeds": seeds, "setting": setting, "per_seed": rows}
 
 
-def case_white10(seeds: list[int]) -> dict[str, Any]:
+def _three_rows(case: str, waypoints, gps_kw: dict, model: str, seeds: list[int]):
+    """iSAM2 (default, drift states), the same with the drift folded, and GPS only."""
     from factorgraph.baselines import gps_only
 
-    rows: dict[str, list] = {"isam_white": [], "isam_white_nodrift": [], "gps": []}
+    rows: dict[str, list] = {f"isam_{model}": [], f"isam_{model}_nodrift": [], "gps": []}
     setting = None
-    gps_kw = WHITE_GPS
     for s in seeds:
-        log = _simulate(BIASED10, gps_kw, s)
-        setting = setting or _setting(log, BIASED10)
-        rows["isam_white"].append(_isam(log, "white"))
-        rows["isam_white_nodrift"].append(_isam(log, "white", drift=False))
+        log = _simulate(waypoints, gps_kw, s)
+        setting = setting or _setting(log, waypoints)
+        rows[f"isam_{model}"].append(_isam(log, model))
+        rows[f"isam_{model}_nodrift"].append(_isam(log, model, drift=False))
         rows["gps"].append(_baseline(gps_only(log), log))
-        print(f"  white10 seed {s}: iSAM2 {rows['isam_white'][-1]['rmse']:.3f} m", flush=True)
-    return {"case": "white10", "seeds": seeds, "setting": setting, "per_seed": rows}
+        print(f"  {case} seed {s}: iSAM2 {rows[f'isam_{model}'][-1]['rmse']:.3f} m", flush=True)
+    return {"case": case, "seeds": seeds, "setting": setting, "per_seed": rows}
+
+
+def case_white10(seeds: list[int]) -> dict[str, Any]:
+    return _three_rows("white10", BIASED10, WHITE_GPS, "white", seeds)
 
 
 def case_paper30(seeds: list[int]) -> dict[str, Any]:
-    from factorgraph.baselines import gps_only
-
-    rows: dict[str, list] = {"isam_bias": [], "isam_bias_nodrift": [], "gps": []}
-    setting = None
     gps_kw = {"bias_sigma_m": (1.5, 1.5, 1.5), "bias_tau_s": 60.0}
-    for s in seeds:
-        log = _simulate(PAPER30, gps_kw, s)
-        setting = setting or _setting(log, PAPER30)
-        rows["isam_bias"].append(_isam(log, "bias"))
-        rows["isam_bias_nodrift"].append(_isam(log, "bias", drift=False))
-        rows["gps"].append(_baseline(gps_only(log), log))
-        print(f"  paper30 seed {s}: iSAM2 {rows['isam_bias'][-1]['rmse']:.2f} m", flush=True)
-    return {"case": "paper30", "seeds": seeds, "setting": setting, "per_seed": rows}
+    return _three_rows("paper30", PAPER30, gps_kw, "bias", seeds)
 
 
 def case_outage(seeds: list[int]) -> dict[str, Any]:

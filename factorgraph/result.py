@@ -100,7 +100,7 @@ class LocalizationResult:
         bias = drift = None
         if params.gps_model == "bias":
             bias = np.array([estimate.atPoint3(B(k)) for k in range(K)])
-        if getattr(params, "odometry_drift", False):
+        if params.odometry_drift:
             Dk = gtsam.symbol_shorthand.D
             drift = np.array([estimate.atPoint2(Dk(k)) for k in range(K)])
         views = np.bincount(
