@@ -15,6 +15,7 @@ from .errors import (
     NumericalError,
     TilingWarning,
 )
+from .gaussian_field import gaussian_field_site, gaussian_field_terrain, se_random_field
 from .gp import TerrainGP
 from .grid import DEFAULT_CRS, Grid
 from .kernels import Matern, SquaredExponential, SumKernel
@@ -66,6 +67,8 @@ __all__ = [
     "default_site",
     "delaunay_linear",
     "evaluate",
+    "gaussian_field_site",
+    "gaussian_field_terrain",
     "interval_coverage",
     "mae",
     "max_abs_error",
@@ -75,6 +78,7 @@ __all__ = [
     "sample_along_path",
     "sample_dem",
     "sample_hyperparameters",
+    "se_random_field",
     "standardized_error_stats",
     "terrain_function",
     "tune_paper_grid",
