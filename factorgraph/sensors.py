@@ -18,21 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from terrain.errors import bad_input
+from terrain.errors import bad_input, positive_number
 
 __all__ = ["CameraModel", "GPSModel", "OdometryModel", "SensorSuite", "TiltModel"]
 
 
 def _positive(owner: str, name: str, value: Any, allow_zero: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise bad_input(f"{owner}.{name}", value, "a number", "pass a float") from exc
-    ok = v >= 0 if allow_zero else v > 0
-    if not (math.isfinite(v) and ok):
-        want = "a finite number >= 0" if allow_zero else "a finite number > 0"
-        raise bad_input(f"{owner}.{name}", value, want, "see the documented default")
-    return v
+    return positive_number(f"{owner}.{name}", value, "see the documented default", allow_zero)
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ had, and what to do about it; :func:`bad_input` builds such messages uniformly.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 __all__ = [
@@ -19,6 +20,7 @@ __all__ = [
     "NumericalError",
     "TilingWarning",
     "bad_input",
+    "positive_number",
 ]
 
 
@@ -78,3 +80,16 @@ def bad_input(
         The subclass to instantiate.
     """
     return cls(f"{field}: expected {expected}, got {_short(value)}. Fix: {fix}")
+
+
+def positive_number(field: str, value: Any, fix: str, allow_zero: bool = False) -> float:
+    """``float(value)`` when it is finite and > 0 (>= 0 with ``allow_zero``); otherwise an
+    :class:`InputError` naming ``field``, the value and ``fix``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as exc:
+        raise bad_input(field, value, "a number", fix) from exc
+    if not (math.isfinite(v) and (v >= 0 if allow_zero else v > 0)):
+        want = "a finite number >= 0" if allow_zero else "a finite number > 0"
+        raise bad_input(field, value, want, fix)
+    return v

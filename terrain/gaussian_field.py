@@ -21,21 +21,11 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from .errors import bad_input
+from .errors import bad_input, positive_number
 from .grid import Grid
 from .synthetic import random_terrain
 
 __all__ = ["gaussian_field_site", "gaussian_field_terrain", "se_random_field"]
-
-
-def _positive(name: str, value: float, fix: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise bad_input(name, value, "a positive number", fix) from exc
-    if not (np.isfinite(v) and v > 0):
-        raise bad_input(name, value, "a positive finite number", fix)
-    return v
 
 
 def se_random_field(
@@ -67,8 +57,8 @@ def se_random_field(
     """
     import gstools as gs
 
-    var = _positive("variance", variance, "e.g. variance=0.18 (m^2)")
-    ell = _positive("length_scale", length_scale, "e.g. length_scale=15.0 (m)")
+    var = positive_number("variance", variance, "e.g. variance=0.18 (m^2)")
+    ell = positive_number("length_scale", length_scale, "e.g. length_scale=15.0 (m)")
     if int(mode_no) < 1:
         raise bad_input("mode_no", mode_no, "an integer >= 1", "e.g. mode_no=1000")
     rng = np.random.default_rng(seed)
@@ -158,12 +148,14 @@ def gaussian_field_site(
     """
     from .prior import coarse_dem
 
-    size = _positive("size", size, "e.g. size=1200.0 (m)")
-    res = _positive("resolution", resolution, "e.g. resolution=2.0 (m)")
+    size = positive_number("size", size, "e.g. size=1200.0 (m)")
+    res = positive_number("resolution", resolution, "e.g. resolution=2.0 (m)")
     if not (np.isfinite(margin) and margin >= res):
-        raise bad_input("margin", margin, f"a distance >= the resolution ({res} m)", "")
+        raise bad_input(
+            "margin", margin, f"a distance >= the resolution ({res} m)", "e.g. margin=150.0 (m)"
+        )
     extent = size + 2 * float(margin)
-    n_dem = int(round(extent / _positive("dem_cell", dem_cell, "e.g. dem_cell=75.0 (m)")))
+    n_dem = int(round(extent / positive_number("dem_cell", dem_cell, "e.g. dem_cell=75.0 (m)")))
     big = Grid.from_bounds((-margin, -margin, size + margin, size + margin), res)
     full = gaussian_field_terrain(big, variance, length_scale, relief=25.0, seed=seed)
     k = int(round(margin / res))
