@@ -27,6 +27,7 @@ from .sensors import GPSModel
 
 __all__ = [
     "bias_floor",
+    "frame_floor",
     "gls_offset_sd",
     "horizontal_floor",
     "horizontal_rmse",
@@ -178,7 +179,7 @@ def gls_offset_sd(
     float
         The standard deviation (m); 0.0 when both noise levels are 0.
     """
-    from scipy.linalg import cho_factor, cho_solve
+    from scipy.linalg import cho_solve
 
     t = np.asarray(fix_times_s, float)
     if t.ndim != 1 or t.size == 0 or not np.isfinite(t).all():
@@ -193,9 +194,7 @@ def gls_offset_sd(
         return 0.0
     if sb2 == 0.0:  # white noise only: the plain mean, no matrix needed
         return math.sqrt(sv2 / t.size)
-    C = sb2 * np.exp(-np.abs(t[:, None] - t[None, :]) / float(tau_s))
-    C[np.diag_indices_from(C)] += sv2
-    x = cho_solve(cho_factor(C, lower=True), np.ones(t.size))
+    x = cho_solve(_gm_cov_factor(t, sigma_b, tau_s, sigma_white), np.ones(t.size))
     return 1.0 / math.sqrt(float(x.sum()))
 
 
@@ -239,3 +238,105 @@ def offset_floor(gps_model: GPSModel, fix_times_s: np.ndarray, axes: bool = Fals
     if axes:
         return np.array(sd)
     return math.hypot(sd[0], sd[1])
+
+
+def _gm_cov_factor(t: np.ndarray, sigma_b: float, tau_s: float, sigma_white: float):
+    """Cholesky factor of ``C = sigma_b^2 exp(-|t_i - t_j| / tau) + sigma_white^2 I``."""
+    from scipy.linalg import cho_factor
+
+    C = float(sigma_b) ** 2 * np.exp(-np.abs(t[:, None] - t[None, :]) / float(tau_s))
+    C[np.diag_indices_from(C)] += float(sigma_white) ** 2
+    return cho_factor(C, lower=True)
+
+
+def _frame_jacobians(d: np.ndarray, n_params: int) -> tuple[np.ndarray, np.ndarray]:
+    """East and north rows of d(position)/d(offset e, offset n, yaw, scale) at offsets ``d``.
+
+    A small yaw ``w`` and scale error ``s`` about the centre move ``d`` by ``w (-d_n, d_e) +
+    s (d_e, d_n)``; the columns beyond ``n_params`` are dropped.
+    """
+    one, zero = np.ones(len(d)), np.zeros(len(d))
+    je = np.stack([one, zero, -d[:, 1], d[:, 0]], axis=1)[:, :n_params]
+    jn = np.stack([zero, one, d[:, 0], d[:, 1]], axis=1)[:, :n_params]
+    return je, jn
+
+
+def frame_floor(
+    gps_model: GPSModel,
+    fix_times_s: np.ndarray,
+    fix_xy: np.ndarray,
+    path_xy: np.ndarray | None = None,
+    heading: bool = True,
+    scale_sigma: float = 0.0,
+) -> float:
+    """Horizontal floor (m) of a traverse whose shape is known but whose frame is not.
+
+    Odometry and vision measure the path only up to a rigid motion: neither sees the absolute
+    position nor the absolute heading, and wheel odometry's scale is known only to its
+    calibration (``OdometryModel.scale_error_sigma``). An estimator given the *exact* relative
+    path must still fit these frame parameters ``theta`` = (east offset, north offset[, yaw][,
+    scale]) to the biased fixes, ``y_i = p_i + J_i theta + b(t_i) + v_i``. The best linear
+    unbiased (GLS) fit has covariance
+
+    ``P = (sum_axes J_a^T C_a^-1 J_a + prior)^-1``,  ``C_a`` as in :func:`gls_offset_sd`,
+
+    and this returns ``sqrt(mean_k trace(J_k P J_k^T))`` over the evaluation path: the RMSE
+    that estimator reaches on average. With ``heading=False`` and ``scale_sigma=0`` it equals
+    :func:`offset_floor`; each added parameter can only raise it. Every real estimator, which
+    must also estimate the path's shape, lies above it.
+
+    Parameters
+    ----------
+    gps_model : GPSModel
+        Noise model of the fixes (east and north axes).
+    fix_times_s : array_like of shape (n,)
+        Times of the fixes received (s).
+    fix_xy : array_like of shape (n, 2) or (n, 3)
+        True positions at those fixes, local ENU (m); only east and north are used.
+    path_xy : array_like of shape (K, 2) or (K, 3), optional
+        Positions at which the error is averaged (m), e.g. every keyframe; default ``fix_xy``.
+    heading : bool
+        Estimate a yaw rotation of the whole path (no absolute heading sensor).
+    scale_sigma : float
+        Prior 1-sigma of the path's scale error (fraction, >= 0): 0 treats the scale as known,
+        ``math.inf`` as unknown.
+
+    Returns
+    -------
+    float
+        The floor in metres.
+    """
+    t = np.asarray(fix_times_s, float)
+    p = np.asarray(fix_xy, float)
+    q = p if path_xy is None else np.asarray(path_xy, float)
+    if t.ndim != 1 or p.ndim != 2 or p.shape[0] != t.size or p.shape[1] < 2 or t.size == 0:
+        raise bad_input(
+            "fix_xy", (t.shape, p.shape), "fix_times_s (n,) with fix_xy (n, 2 or 3)", "align them"
+        )
+    if q.ndim != 2 or q.shape[1] < 2 or q.shape[0] == 0:
+        raise bad_input("path_xy", q.shape, "an array (K >= 1, 2 or 3)", "pass keyframe xyz")
+    try:
+        s_ok = float(scale_sigma) >= 0
+    except (TypeError, ValueError):
+        s_ok = False
+    if not s_ok:
+        raise bad_input("scale_sigma", scale_sigma, "a fraction >= 0 (inf: unknown)", "")
+    from scipy.linalg import cho_solve
+
+    n_params = 2 + int(bool(heading)) + int(float(scale_sigma) > 0)
+    centre = p[:, :2].mean(axis=0)
+    jac = _frame_jacobians(p[:, :2] - centre, n_params)
+    info = np.zeros((n_params, n_params))
+    factors: dict[tuple[float, float], tuple] = {}
+    for a, j in enumerate(jac):
+        sb, sv = gps_model.bias_sigma_m[a], gps_model.sigma_white_m[a]
+        if (sb, sv) not in factors:
+            factors[sb, sv] = _gm_cov_factor(t, sb, gps_model.bias_tau_s, sv)
+        info += j.T @ cho_solve(factors[sb, sv], j)
+    if n_params == 4 and math.isfinite(float(scale_sigma)):
+        info[3, 3] += float(scale_sigma) ** -2  # the calibration prior on the scale
+    cov = np.linalg.inv(info)
+    var = sum(
+        np.einsum("ki,ij,kj->k", j, cov, j) for j in _frame_jacobians(q[:, :2] - centre, n_params)
+    )
+    return float(math.sqrt(np.mean(var)))

@@ -9,7 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from factorgraph.evaluate import bias_floor, gls_offset_sd, horizontal_floor, offset_floor
+from factorgraph.evaluate import (
+    bias_floor,
+    frame_floor,
+    gls_offset_sd,
+    horizontal_floor,
+    offset_floor,
+)
 from factorgraph.sensors import GPSModel
 from terrain.errors import InputError
 
@@ -141,3 +147,66 @@ def test_axes_order_and_bad_input():
         gls_offset_sd(t, 1.0, 0.0, 1.0)
     with pytest.raises(InputError, match="sigma_white"):
         gls_offset_sd(t, 1.0, 60.0, -1.0)
+
+
+# ------------------------------------------------------------------------------ frame_floor
+
+
+def _line(n: int, step: float = 1.0) -> np.ndarray:
+    """n points along east, equally spaced, centred on the origin (m)."""
+    x = (np.arange(n) - (n - 1) / 2) * step
+    return np.stack([x, np.zeros(n)], axis=1)
+
+
+def test_frame_floor_without_heading_or_scale_is_the_offset_floor():
+    """Only the offset estimated: the same GLS problem as offset_floor, on any path."""
+    g = GPSModel()
+    t = np.arange(601.0)
+    rng = np.random.default_rng(3)
+    xy = np.cumsum(rng.normal(size=(t.size, 2)), axis=0)
+    f = frame_floor(g, t, xy, heading=False, scale_sigma=0.0)
+    assert f == pytest.approx(offset_floor(g, t), rel=1e-10)
+
+
+def test_frame_floor_straight_line_white_noise_hand_values():
+    """White noise sigma, n points on a line along east, symmetric about the centre. Hand
+    computation: the east error is a mean (sigma^2 / n); with a yaw, north is a straight-line
+    regression whose fitted-value variance sigma^2 (1/n + x^2 / sum x^2) averages to
+    2 sigma^2 / n over the same points, so the floor is sigma sqrt(3 / n); a free scale makes
+    east a regression too: sigma sqrt(4 / n)."""
+    s, n = 2.0, 101
+    g = GPSModel(sigma_white_m=(s, s, s), bias_sigma_m=(0.0, 0.0, 0.0))
+    t, xy = np.arange(float(n)), _line(n, 3.0)
+    assert frame_floor(g, t, xy, heading=True) == pytest.approx(s * math.sqrt(3 / n), rel=1e-10)
+    free = frame_floor(g, t, xy, heading=True, scale_sigma=math.inf)
+    assert free == pytest.approx(s * math.sqrt(4 / n), rel=1e-10)
+
+
+def test_frame_floor_grows_with_each_unknown_and_is_isotropic():
+    """Each parameter added can only raise the floor; a tighter scale prior lowers it; with
+    equal noise on both axes, turning the whole path leaves it unchanged."""
+    g = GPSModel()
+    t = np.arange(621.0)
+    xy = np.concatenate([_line(290, 1.0), _line(331, 1.0)[::-1] + [0.0, -40.0]])[: t.size]
+    chain = [
+        frame_floor(g, t, xy, heading=False),
+        frame_floor(g, t, xy, heading=True),
+        frame_floor(g, t, xy, heading=True, scale_sigma=0.002),
+        frame_floor(g, t, xy, heading=True, scale_sigma=0.01),
+        frame_floor(g, t, xy, heading=True, scale_sigma=math.inf),
+    ]
+    assert all(b > a for a, b in zip(chain, chain[1:], strict=False))
+    c, s = math.cos(0.7), math.sin(0.7)
+    turned = xy @ np.array([[c, s], [-s, c]]) + [500.0, -200.0]
+    assert frame_floor(g, t, turned, scale_sigma=0.01) == pytest.approx(chain[3], rel=1e-9)
+
+
+def test_frame_floor_bad_input():
+    g = GPSModel()
+    t = np.arange(10.0)
+    with pytest.raises(InputError, match="fix_xy"):
+        frame_floor(g, t, np.zeros((9, 2)))
+    with pytest.raises(InputError, match="path_xy"):
+        frame_floor(g, t, _line(10), path_xy=np.zeros((0, 2)))
+    with pytest.raises(InputError, match="scale_sigma"):
+        frame_floor(g, t, _line(10), scale_sigma=-0.01)
