@@ -435,7 +435,8 @@ def _summarise(result: dict[str, Any]) -> dict[str, Any]:
         if "pred_rmse" in rows[0]:
             pred = float(np.sqrt(np.mean([r["pred_rmse"] ** 2 for r in rows])))
             agg["pred_rms_over_seeds"] = pred
-            agg["bound_over_floor"] = pred / fl["horizontal_floor_m"]
+            if fl["horizontal_floor_m"] > 0:  # white10: no bias, no floor
+                agg["bound_over_floor"] = pred / fl["horizontal_floor_m"]
             if fl.get("frame_floor_m", 0) > 0:
                 agg["bound_over_frame_floor"] = pred / fl["frame_floor_m"]
         for f in ("horizontal_floor_m", "offset_floor_m", "frame_floor_m"):

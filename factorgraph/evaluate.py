@@ -249,6 +249,34 @@ def _gm_cov_factor(t: np.ndarray, sigma_b: float, tau_s: float, sigma_white: flo
     return cho_factor(C, lower=True)
 
 
+def _gm_information(
+    t: np.ndarray, jac: np.ndarray, sigma_b: float, tau_s: float, sigma_white: float
+) -> np.ndarray:
+    """``J^T C^-1 J`` for ``C = sigma_b^2 exp(-|t_i - t_j| / tau) + sigma_white^2 I``, O(n p^2).
+
+    The prediction-error decomposition: a scalar Kalman filter for the noise ``b + v`` (``b``
+    the Gauss-Markov bias, ``v`` white), run on the columns of ``J`` as if they were data,
+    turns them into innovations ``e_i`` of variance ``S_i`` with ``J^T C^-1 J = sum_i e_i e_i^T /
+    S_i``. Same result as the Cholesky route (tested to 1e-12), without the n x n matrix: an
+    8-hour log at 1 Hz (28,800 fixes) would need 6.6 GB for it.
+    """
+    order = np.argsort(t, kind="stable")
+    sb2, sv2 = float(sigma_b) ** 2, float(sigma_white) ** 2
+    m, var = np.zeros(jac.shape[1]), sb2  # filtered bias "estimate" per column, its variance
+    info = np.zeros((jac.shape[1], jac.shape[1]))
+    prev = None
+    for ti, ji in zip(t[order], jac[order], strict=True):
+        if prev is not None:  # propagate the bias over the gap: b' = phi b + w
+            phi = math.exp(-(ti - prev) / float(tau_s))
+            m, var = phi * m, phi * phi * var + sb2 * (1.0 - phi * phi)
+        prev = ti
+        e, s_var = ji - m, var + sv2  # innovation and its variance
+        info += np.outer(e, e) / s_var
+        gain = var / s_var
+        m, var = m + gain * e, var - gain * var
+    return info
+
+
 def _frame_jacobians(d: np.ndarray, n_params: int) -> tuple[np.ndarray, np.ndarray]:
     """East and north rows of d(position)/d(offset e, offset n, yaw, scale) at offsets ``d``.
 
@@ -280,7 +308,9 @@ def frame_floor(
 
     ``P = (sum_axes J_a^T C_a^-1 J_a + prior)^-1``,  ``C_a`` as in :func:`gls_offset_sd`,
 
-    and this returns ``sqrt(mean_k trace(J_k P J_k^T))`` over the evaluation path: the RMSE
+    (accumulated in O(n) by a Kalman filter, :func:`_gm_information`; a path without extent
+    leaves yaw and scale unobservable and harmless, hence a pseudo-inverse), and this returns
+    ``sqrt(mean_k trace(J_k P J_k^T))`` over the evaluation path: the RMSE
     that estimator reaches on average. With ``heading=False`` and ``scale_sigma=0`` it equals
     :func:`offset_floor`; each added parameter can only raise it. Every real estimator, which
     must also estimate the path's shape, lies above it.
@@ -321,21 +351,18 @@ def frame_floor(
         s_ok = False
     if not s_ok:
         raise bad_input("scale_sigma", scale_sigma, "a fraction >= 0 (inf: unknown)", "")
-    from scipy.linalg import cho_solve
+    from scipy.linalg import pinvh
 
     n_params = 2 + int(bool(heading)) + int(float(scale_sigma) > 0)
     centre = p[:, :2].mean(axis=0)
     jac = _frame_jacobians(p[:, :2] - centre, n_params)
     info = np.zeros((n_params, n_params))
-    factors: dict[tuple[float, float], tuple] = {}
     for a, j in enumerate(jac):
         sb, sv = gps_model.bias_sigma_m[a], gps_model.sigma_white_m[a]
-        if (sb, sv) not in factors:
-            factors[sb, sv] = _gm_cov_factor(t, sb, gps_model.bias_tau_s, sv)
-        info += j.T @ cho_solve(factors[sb, sv], j)
+        info += _gm_information(t, j, sb, gps_model.bias_tau_s, sv)
     if n_params == 4 and math.isfinite(float(scale_sigma)):
         info[3, 3] += float(scale_sigma) ** -2  # the calibration prior on the scale
-    cov = np.linalg.inv(info)
+    cov = pinvh(info)
     var = sum(
         np.einsum("ki,ij,kj->k", j, cov, j) for j in _frame_jacobians(q[:, :2] - centre, n_params)
     )

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from factorgraph.evaluate import frame_floor, horizontal_floor
 from factorgraph.localize import LocalizeParams, localize
 from factorgraph.log import MeasurementLog
 from factorgraph.result import LocalizationResult
@@ -346,9 +347,26 @@ def localization_summary(loc: LocalizationResult, sel: LandmarkSelection) -> dic
     """Counts, timings and (in simulation) errors of one localization + selection, as plain
     JSON values: keyframes, duration, horizontal / vertical RMSE of the keyframes against the
     truth (m), iSAM2 step median / p95 and marginal times (s), landmarks in the graph and
-    selected, the shared-offset 1-sigma (m), the selection counts, rebuilds and landmark NEES."""
+    selected, the shared-offset 1-sigma (m), the selection counts, rebuilds and landmark NEES.
+
+    Without truth too: ``predicted_horizontal_rmse_m`` (what the keyframe marginals predict,
+    sqrt of their mean horizontal trace), ``horizontal_floor_m`` (the mean GPS bias floor) and
+    ``frame_floor_m`` (:func:`factorgraph.evaluate.frame_floor` on the estimated path: the
+    best any estimator of this GPS and relative sensors can expect on this traverse)."""
     log = loc.log
     out: dict[str, Any] = {"keyframes": log.n_keyframes, "duration_s": log.duration_s}
+    pose_h = loc.pose_cov_xyz[:, :2, :2]
+    out["predicted_horizontal_rmse_m"] = float(np.sqrt(np.mean(np.trace(pose_h, 0, 1, 2))))
+    if log.gps_k.size and log.duration_s > 0:
+        gps, xyz = log.sensors.gps, loc.keyframe_xyz
+        out["horizontal_floor_m"] = horizontal_floor(gps, log.duration_s)
+        out["frame_floor_m"] = frame_floor(
+            gps,
+            log.t[log.gps_k],
+            xyz[log.gps_k],
+            xyz,
+            scale_sigma=log.sensors.odometry.scale_error_sigma,
+        )
     if log.has_truth:
         err = loc.keyframe_xyz - log.truth["xyz"]
         out["horizontal_rmse_m"] = float(np.sqrt((err[:, :2] ** 2).sum(1).mean()))
