@@ -45,7 +45,8 @@ seed; "in 2 sigma": share with NEES < chi2.ppf(0.9545, 3). The landmarks of one 
 the GPS offset, so the seed-to-seed spread of the NEES mean is large. Keyframe NEES: 2-D,
 horizontal block of ``pose_cov_xyz``. Step times: per-keyframe iSAM2 wall time.
 
-Run time on the 2-core development machine: ~8 min for 5 seeds (paper30 ~55 s per seed).
+Run time on the 2-core development machine: ~26 min for 5 seeds (paper30 ~3 min per seed);
+``--cases biased10_isam --seeds 40`` (biased10's iSAM2 row alone, not in the default run) ~8 min.
 Every case runs in its own process (its peak RSS is its own).
 """
 

@@ -101,8 +101,17 @@ def test_localize_tables_and_counts(chain):
     # the keyframe errors printed come from the truth columns of the trajectory table
     err = traj[["x", "y"]].to_numpy() - traj[["true_x", "true_y"]].to_numpy()
     assert summary["horizontal_rmse_m"] == pytest.approx(np.sqrt((err**2).sum(1).mean()))
+    # the expected RMSE printed is the trajectory table's own horizontal 1-sigmas
+    pred = np.sqrt((traj["std_x"] ** 2 + traj["std_y"] ** 2).mean())
+    assert summary["predicted_horizontal_rmse_m"] == pytest.approx(pred, rel=1e-6)
+    # no ordering against the frame floor here: over 81 s the GPS says little about the
+    # heading and the estimator's 5-degree yaw prior at the start (which the floor leaves
+    # out) is worth more (measured: expected 2.63 m against a floor of 2.66 m)
+    assert summary["frame_floor_m"] > summary["horizontal_floor_m"] > 0
     out = chain["localize"]
-    for text in ("landmarks selected", "never triangulated", "step median", str(counts["kept"])):
+    for text in ("landmarks selected", "never triangulated", "step median", "frame floor"):
+        assert text in out, out
+    for text in (str(counts["kept"]),):
         assert text in out, out
     assert summary["settings"]["select"]["max_sigma_m"] == DEFAULT_SCENARIO["select"]["max_sigma_m"]
 

@@ -139,7 +139,9 @@ def test_contours_read_by_ogrinfo_and_validator(run, product, cert):
 def test_certificate_states_expected_accuracy_and_floors(cert):
     """Without the truth a user still learns what the run expects (the marginals' RMSE) and
     the best any estimator could expect (the frame floor on the estimated path); a
-    consistent posterior cannot claim to beat that floor."""
+    consistent posterior cannot claim to beat that floor once the 12-min traverse has told
+    it more about the heading than its 5-degree start prior does (measured: expected 1.86 m,
+    frame floor 1.74 m, mean-bias floor 1.39 m)."""
     loc = cert["localization"]
     pred, frame, issue = (
         loc[k] for k in ("predicted_horizontal_rmse_m", "frame_floor_m", "horizontal_floor_m")

@@ -96,6 +96,13 @@ def _print_counts(summary: dict[str, Any], files: list[Path]) -> None:
             f"{v:.2f}" for v in summary["shared_offset_std_m"]
         ),
     }
+    rows["expected horizontal RMSE, from the marginals (m)"] = (
+        f"{summary['predicted_horizontal_rmse_m']:.2f}"
+    )
+    if "frame_floor_m" in summary:
+        rows["best possible: mean-bias floor / frame floor (m)"] = (
+            f"{summary['horizontal_floor_m']:.2f} / {summary['frame_floor_m']:.2f}"
+        )
     if "horizontal_rmse_m" in summary:
         rows["keyframe RMSE vs truth, horiz. / vert. (m)"] = (
             f"{summary['horizontal_rmse_m']:.2f} / {summary['vertical_rmse_m']:.2f}"
