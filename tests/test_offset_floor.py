@@ -36,6 +36,16 @@ def _kalman_offset_sd(t, sigma_b, tau, sigma_white, prior_sd=1e4):
     return math.sqrt(P[0, 0])
 
 
+def _dense_cov_factor(t, sigma_b, tau, sigma_white):
+    """Independent reference: Cholesky factor of the full n x n covariance
+    ``sigma_b^2 exp(-|t_i - t_j| / tau) + sigma_white^2 I``."""
+    from scipy.linalg import cho_factor
+
+    C = sigma_b**2 * np.exp(-np.abs(t[:, None] - t[None, :]) / tau)
+    C[np.diag_indices_from(C)] += sigma_white**2
+    return cho_factor(C, lower=True)
+
+
 def test_white_noise_only_is_sigma_over_root_n():
     """(a) sigma_b = 0: the fixes are iid, the mean is the best estimate, sd = sigma_white /
     sqrt(n) per axis (hand computation); horizontal: sqrt(2) times that."""
@@ -168,6 +178,28 @@ def test_frame_floor_without_heading_or_scale_is_the_offset_floor():
     assert f == pytest.approx(offset_floor(g, t), rel=1e-10)
 
 
+def test_frame_floor_with_different_noise_per_axis_matches_a_dense_solve():
+    """East and north with their own noise (two filter passes) against J^T C^-1 J summed
+    from dense Cholesky solves per axis, on an L-shaped path where yaw couples the axes."""
+    from scipy.linalg import cho_solve
+
+    from factorgraph.evaluate import _frame_jacobians
+
+    g = GPSModel(sigma_white_m=(2.5, 1.5, 3.0), bias_sigma_m=(2.5, 1.0, 2.5))
+    t = np.arange(400.0)
+    xy = np.concatenate([_line(250, 1.0), np.stack([np.full(150, 124.5), -np.arange(150.0)], 1)])
+    je, jn = _frame_jacobians(xy - xy.mean(axis=0), 3)
+    info = sum(
+        j.T @ cho_solve(_dense_cov_factor(t, sb, 60.0, sv), j)
+        for j, sb, sv in ((je, 2.5, 2.5), (jn, 1.0, 1.5))
+    )
+    cov = np.linalg.inv(info)
+    ref = math.sqrt(
+        np.mean(np.einsum("ki,ij,kj->k", je, cov, je) + np.einsum("ki,ij,kj->k", jn, cov, jn))
+    )
+    assert frame_floor(g, t, xy) == pytest.approx(ref, rel=1e-9)
+
+
 def test_frame_floor_straight_line_white_noise_hand_values():
     """White noise sigma, n points on a line along east, symmetric about the centre. Hand
     computation: the east error is a mean (sigma^2 / n); with a yaw, north is a straight-line
@@ -210,6 +242,8 @@ def test_frame_floor_bad_input():
         frame_floor(g, t, _line(10), path_xy=np.zeros((0, 2)))
     with pytest.raises(InputError, match="scale_sigma"):
         frame_floor(g, t, _line(10), scale_sigma=-0.01)
+    with pytest.raises(InputError, match="fix_xy"):
+        frame_floor(g, t, np.where(np.arange(10)[:, None] == 3, np.nan, _line(10)))
 
 
 def test_frame_floor_kalman_information_matches_cholesky():
@@ -217,13 +251,13 @@ def test_frame_floor_kalman_information_matches_cholesky():
     irregular times (dropouts) and random columns."""
     from scipy.linalg import cho_solve
 
-    from factorgraph.evaluate import _gm_cov_factor, _gm_information
+    from factorgraph.evaluate import _gm_information
 
     rng = np.random.default_rng(0)
     t = np.sort(rng.uniform(0.0, 900.0, 500))
     jac = rng.normal(size=(500, 4))
     for sb, tau, sv in ((2.5, 60.0, 2.5), (1.0, 5.0, 0.3), (0.0, 60.0, 1.0)):
-        ref = jac.T @ cho_solve(_gm_cov_factor(t, sb, tau, sv), jac)
+        ref = jac.T @ cho_solve(_dense_cov_factor(t, sb, tau, sv), jac)
         got = _gm_information(t[::-1].copy(), jac[::-1].copy(), sb, tau, sv)  # any order
         np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
 
@@ -243,7 +277,7 @@ def test_frame_floor_is_the_monte_carlo_error_of_the_frame_fit():
     the mean square has ~5 % sampling error)."""
     from scipy.linalg import cho_solve
 
-    from factorgraph.evaluate import _frame_jacobians, _gm_cov_factor
+    from factorgraph.evaluate import _frame_jacobians
 
     sb, sv, tau, s_scale = 2.5, 2.5, 60.0, 0.01
     g = GPSModel(sigma_white_m=(sv, sv, sv), bias_sigma_m=(sb, sb, sb), bias_tau_s=tau)
@@ -251,7 +285,7 @@ def test_frame_floor_is_the_monte_carlo_error_of_the_frame_fit():
     xy = np.concatenate([_line(290, 1.0), _line(331, 1.0)[::-1] + [0.0, -40.0]])[: t.size]
     d = xy - xy.mean(axis=0)
     je, jn = _frame_jacobians(d, 4)
-    cf = _gm_cov_factor(t, sb, tau, sv)
+    cf = _dense_cov_factor(t, sb, tau, sv)
     info = je.T @ cho_solve(cf, je) + jn.T @ cho_solve(cf, jn) + np.diag([0, 0, 0, s_scale**-2])
     rng = np.random.default_rng(7)
     phi = math.exp(-1.0 / tau)
