@@ -1,0 +1,269 @@
+"""Real DEMs that glacimap did not make, fetched on demand, and glacier-sized test sites.
+
+Sources (DESIGN.md §5; docs/terrain.md "Real terrain"): Debian packages that ship real
+elevation data, downloaded with ``apt-get download`` and unpacked with ``dpkg -x`` (no R):
+
+``olinda``  r-cran-stars ``tif/olinda_dem_utm25s.tif``: a 111 x 111 DEM at 90 m (SRTM-like),
+            Olinda, Brazil, UTM 25S.
+``rm``      r-cran-fields ``data/RMelevation.rda``: Rocky Mountain elevations, 289 x 242 at
+            2.5 arc-minutes, longitude/latitude.
+``prism``   r-cran-fields ``data/PRISMelevation.rda``: conterminous US at 2.5 arc-minutes,
+            NaN over the oceans.
+``glacier`` r-cran-fields ``data/glacier.rda``: 8,338 points digitised from the contours of a
+            real glacier (locations in km, elevations in m), gridded here by cubic
+            interpolation inside their hull.
+
+Files are cached under ``$GLACIMAP_DATA`` (default ``~/.cache/glacimap/real-dems``).
+:class:`RealDataUnavailable` says why when the registry cannot be reached; tests and
+benchmarks skip with that reason.
+
+A *site* (:func:`glacier_site`) takes a window of a real DEM as the shape donor, maps it onto
+a glacier-sized square (default 600 m at 2 m) with a bicubic spline through its nodes and
+rescales the elevations to a given relief: the real DEM's roughness spectrum, down to the
+node spacing, on the scale a rover surveys. :func:`track_samples` then samples it the way a
+rover does: landmarks beside parallel tracks plus scattered points, with Gaussian noise.
+
+Usage: ``python scripts/real_dems.py`` fetches the files and prints what it has.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from terrain import ElevationSamples, Grid  # noqa: E402
+
+PACKAGES = {
+    "r-cran-stars": {"olinda": "usr/lib/R/site-library/stars/tif/olinda_dem_utm25s.tif"},
+    "r-cran-fields": {
+        "rm": "usr/lib/R/site-library/fields/data/RMelevation.rda",
+        "prism": "usr/lib/R/site-library/fields/data/PRISMelevation.rda",
+        "glacier": "usr/lib/R/site-library/fields/data/glacier.rda",
+    },
+}
+FILES = {name: Path(rel).name for files in PACKAGES.values() for name, rel in files.items()}
+NAMES = tuple(FILES)
+
+
+class RealDataUnavailable(RuntimeError):
+    """The real DEMs are not cached and could not be downloaded; the message says why."""
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("GLACIMAP_DATA", Path.home() / ".cache/glacimap/real-dems"))
+
+
+def fetch(cache: Path | None = None) -> Path:
+    """Download and unpack the packages once; return the cache folder with the four files."""
+    cache = Path(cache or cache_dir())
+    if all((cache / f).exists() for f in FILES.values()):
+        return cache
+    if shutil.which("apt-get") is None or shutil.which("dpkg") is None:
+        raise RealDataUnavailable("apt-get/dpkg not found: the real DEMs come from Debian packages")
+    cache.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for pkg, files in PACKAGES.items():
+            try:
+                subprocess.run(
+                    ["apt-get", "download", pkg], cwd=tmp, check=True, capture_output=True,
+                    timeout=300,
+                )  # fmt: skip
+            except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as exc:
+                err = getattr(exc, "stderr", b"") or b""
+                raise RealDataUnavailable(
+                    f"apt-get download {pkg} failed ({err.decode(errors='replace').strip()[-200:]}"
+                    "); the package registry is needed once to cache the real DEMs"
+                ) from exc
+            deb = next(Path(tmp).glob(f"{pkg}_*.deb"))
+            subprocess.run(["dpkg", "-x", str(deb), str(Path(tmp) / "x")], check=True)
+            for rel in files.values():
+                src = Path(tmp) / "x" / rel
+                part = cache / (src.name + ".part")  # atomic: never a half-copied file
+                shutil.copyfile(src, part)
+                part.replace(cache / src.name)
+    return cache
+
+
+def _read_rda(path: Path, name: str) -> dict:
+    import rdata
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "Unknown encoding. Assumed ASCII."
+        return rdata.read_rda(str(path))[name]
+
+
+def load(name: str) -> xr.DataArray:
+    """A real DEM as a north-up ``DataArray`` (dims y, x) in its own CRS, metres of elevation.
+
+    ``olinda`` keeps its UTM 25S CRS; ``rm`` and ``prism`` are in EPSG:4326 (degrees: a
+    geographic DEM, as a user's satellite product may be); ``glacier`` is gridded at 100 m
+    in a local transverse Mercator frame (its locations are km in an unnamed plane).
+    """
+    if name not in FILES:
+        raise ValueError(f"name: expected one of {NAMES}, got {name!r}")
+    path = fetch() / FILES[name]
+    if name == "olinda":
+        import rasterio
+
+        with rasterio.open(path) as ds:
+            z = ds.read(1).astype(float)
+            t = ds.transform
+            crs = ds.crs.to_wkt()
+        x = t.c + t.a * (np.arange(z.shape[1]) + 0.5)
+        y = t.f + t.e * (np.arange(z.shape[0]) + 0.5)
+        return _array(z, x, y, crs, name)
+    if name in ("rm", "prism"):
+        d = _read_rda(path, "RMelevation" if name == "rm" else "PRISMelevation")
+        z = np.asarray(d["z"], float).T[::-1]  # R stores z[x, y] with y ascending
+        x, y = np.asarray(d["x"], float), np.asarray(d["y"], float)[::-1]
+        return _array(z, x, y, "EPSG:4326", name)
+    from scipy.interpolate import griddata
+
+    d = _read_rda(path, "glacier")
+    loc = np.asarray(d["loc"], float) * 1000.0  # km -> m
+    zpts = np.asarray(d["y"], float).ravel()
+    res = 100.0
+    x = np.arange(loc[:, 0].min() + res, loc[:, 0].max() - res, res)
+    y = np.arange(loc[:, 1].max() - res, loc[:, 1].min() + res, -res)
+    xx, yy = np.meshgrid(x, y)
+    z = griddata(loc, zpts, (xx, yy), method="cubic")
+    crs = "+proj=tmerc +lat_0=0 +lon_0=0 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
+    return _array(z, x, y, crs, name)
+
+
+def _array(z, x, y, crs, name) -> xr.DataArray:
+    return xr.DataArray(
+        z,
+        coords={"y": y, "x": x},
+        dims=("y", "x"),
+        name="elevation",
+        attrs={"units": "m", "crs_wkt": crs, "source": f"real DEM {name} ({FILES[name]})"},
+    )
+
+
+def _windows(z: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """Top-left corners of k x k windows without NaN, most relief first."""
+    ny, nx = z.shape
+    step = max(k // 2, 1)
+    out = []
+    for i in range(0, ny - k + 1, step):
+        for j in range(0, nx - k + 1, step):
+            w = z[i : i + k, j : j + k]
+            if np.all(np.isfinite(w)):
+                out.append((float(np.std(w)), i, j))
+    out.sort(reverse=True)
+    return [(i, j) for _, i, j in out]
+
+
+def glacier_site(
+    name: str,
+    size_m: float = 600.0,
+    relief_m: float = 25.0,
+    resolution: float = 2.0,
+    nodes: int = 40,
+    window: int = 0,
+    crs: str = "EPSG:32608",
+) -> xr.DataArray:
+    """A glacier-sized truth DEM whose shape comes from a real DEM.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`NAMES`.
+    size_m, resolution : float
+        Side of the square site and its cell size, m.
+    relief_m : float
+        Elevation range of the site after rescaling, m (25 m: the paper's site).
+    nodes : int
+        Real DEM nodes along a side of the window: the node spacing on the site is
+        ``size_m / (nodes - 1)`` (40 -> 15.4 m, the rover-scale length scale).
+    window : int
+        Which window: 0 is the one with the most relief, 1 the next...
+    crs : str
+        CRS the site is labelled with (the paper's UTM 8N).
+    """
+    from scipy.interpolate import RectBivariateSpline
+
+    dem = load(name)
+    z = np.asarray(dem.values, float)
+    corners = _windows(z, nodes)
+    if window >= len(corners):
+        raise ValueError(f"window: {name} has {len(corners)} windows of {nodes} nodes")
+    i, j = corners[window]
+    w = z[i : i + nodes, j : j + nodes]
+    t = np.linspace(0.0, size_m, nodes)
+    spline = RectBivariateSpline(t, t, w[::-1], kx=3, ky=3)  # rows south -> north
+    n = int(round(size_m / resolution))
+    grid = Grid(500_000.0, 6_800_000.0 + size_m, (resolution, resolution), (n, n), crs)
+    u = (np.arange(n) + 0.5) * resolution
+    fine = spline(u, u)[::-1]  # back to north-up
+    fine = (fine - fine.min()) / np.ptp(fine) * relief_m + 1000.0
+    return grid.data_array(
+        fine,
+        "elevation",
+        source=f"real DEM {name} window {window} ({nodes} nodes, corner row {i} col {j}), "
+        f"rescaled to {size_m:g} m and {relief_m:g} m relief",
+    )
+
+
+def track_samples(
+    truth: xr.DataArray,
+    n: int,
+    n_tracks: int = 8,
+    scattered: float = 0.1,
+    noise_sd: float = 0.2,
+    lateral_sd: float = 8.0,
+    stated_var: bool = True,
+    seed: int = 0,
+) -> ElevationSamples:
+    """Noisy samples along ``n_tracks`` north-south rover tracks plus scattered points.
+
+    Track samples lie beside wavy north-south lines (half-normal lateral offset of
+    ``lateral_sd`` m on either side), ``scattered`` of them uniformly over the site. Each
+    sample is the bilinear truth plus N(0, noise_sd^2); ``stated_var`` writes that variance
+    into ``z_var`` (else 0: noise the samples do not state).
+    """
+    from terrain import sample_dem
+
+    rng = np.random.default_rng(seed)
+    grid = Grid.from_dataarray(truth)
+    w, s, e, nb = grid.bounds
+    lo = np.array([grid.x[0], grid.y[-1]])
+    hi = np.array([grid.x[-1], grid.y[0]])
+    n_scat = int(round(scattered * n))
+    n_trk = n - n_scat
+    track = rng.integers(0, n_tracks, n_trk)
+    spacing = (e - w) / n_tracks
+    yy = rng.uniform(s, nb, n_trk)
+    phase = rng.uniform(0, 2 * np.pi, n_tracks)
+    x0 = w + spacing * (track + 0.5) + 6.0 * np.sin(yy / 45.0 + phase[track])
+    xx = x0 + rng.normal(0.0, lateral_sd, n_trk)
+    pts = np.column_stack([xx, yy])
+    pts = np.vstack([pts, rng.uniform(lo, hi, (n_scat, 2))])
+    pts = np.clip(pts, lo, hi)
+    true_z = sample_dem(truth, pts)
+    z = true_z + rng.normal(0.0, noise_sd, n)
+    z_var = np.full(n, noise_sd**2 if stated_var else 0.0)
+    return ElevationSamples(
+        pts, z, z_var, crs=grid.crs, extra={"true_z": true_z}, duplicates="average"
+    )
+
+
+if __name__ == "__main__":
+    where = fetch()
+    print(f"real DEMs cached in {where}")
+    for nm in NAMES:
+        da = load(nm)
+        print(f"  {nm:8s} {da.shape} {np.nanmin(da.values):8.1f}..{np.nanmax(da.values):8.1f} m")
