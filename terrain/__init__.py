@@ -36,11 +36,13 @@ from .sampling import LandmarkNoise, sample_along_path, sample_dem
 from .synthetic import TerrainFeatures, default_site, random_terrain, terrain_function
 from .tiled import TileSpec
 from .tuning import PaperTuning, tune_paper_grid
+from .validation import CrossValidation, cross_validate
 
 __all__ = [
     "DEFAULT_CRS",
     "CRSMismatchError",
     "ConstantMean",
+    "CrossValidation",
     "DuplicateLocationError",
     "ElevationSamples",
     "GlacimapError",
@@ -64,6 +66,7 @@ __all__ = [
     "as_mean_function",
     "coarse_dem",
     "covered_fraction",
+    "cross_validate",
     "default_site",
     "delaunay_linear",
     "evaluate",

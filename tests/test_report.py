@@ -165,3 +165,87 @@ def test_report_command_rebuilds_from_a_run_folder(demo, cert, tmp_path):
     assert len(page.imgs) == 6  # + error, calibration (truth.nc) and trajectory (npz)
     assert len(page.verdicts) == len(cert["verdicts"])
     assert "alpha" in (run / RUN_FILES["report"]).read_text()
+
+
+# --------------------------------------------------------------------------- held-out sigma
+@pytest.fixture(scope="module")
+def heldout(demo):
+    """A deliberately over-confident GP (kernel variance 1e-3 m^2 on 25 m of relief, nugget
+    fixed tiny) checked by spatial block cross-validation: it under-covers."""
+    from terrain import SquaredExponential, TerrainGP, cross_validate
+
+    gp = TerrainGP(
+        SquaredExponential(1e-3, 15.0),
+        nugget=1e-6,
+        nugget_bounds="fixed",
+        optimize=False,
+        method="exact",
+    ).fit(demo.samples)
+    return cross_validate(gp, demo.samples, seed=0)
+
+
+@pytest.fixture(scope="module")
+def cert_heldout(demo, heldout):
+    rng = np.random.default_rng(0)  # the same checkpoints as ``cert``
+    w, s, e, n = 526010.0, 6475010.0, 526590.0, 6475590.0
+    xy = np.column_stack([rng.uniform(w, e, 30), rng.uniform(s, n, 30)])
+    table = {"x": xy[:, 0], "y": xy[:, 1], "z": sample_dem(demo.truth, xy)}
+    return certify(demo.maps["gp_satellite"], table, seed=0, n_boot=500, heldout=heldout)
+
+
+def test_heldout_block_in_the_certificate(cert, cert_heldout, heldout):
+    from toolkit.certify import certificate_json, heldout_block
+
+    block = cert_heldout["heldout_calibration"]
+    assert {k: v for k, v in cert_heldout.items() if k != "heldout_calibration"} == cert
+    assert block["method"] == "spatial block k-fold" and block["n_folds"] == 5
+    assert block["block_size_m"] == heldout.block_size and len(block["folds"]) == 5
+    for key in ("n", "rmse_m", "nlpd", "coverage_68", "coverage_95", "z_mean", "z_std"):
+        assert block[key] == heldout.pooled[key]
+    assert block["verdict"] == heldout.verdict() and block["coverage_95"] < 0.9
+    assert any("95 % coverage" in v and "too small" in v for v in block["verdict"])
+    as_json = json.loads(certificate_json(cert_heldout))["heldout_calibration"]
+    assert heldout_block(heldout.to_dict()) == block == as_json
+    assert heldout_block(as_json) == block  # the block re-reads itself
+    with pytest.raises(InputError, match="heldout"):
+        heldout_block({"pooled": {"n": 3}})
+    with pytest.raises(InputError, match="heldout"):
+        certify(None, None, heldout=42)  # checked before any work
+
+
+def test_report_draws_heldout_curve_and_verdict(demo, cert_heldout, tmp_path):
+    from markupsafe import escape
+
+    product = demo.maps["gp_satellite"]
+    path = write_report(tmp_path / "h.html", product=product, certificate=cert_heldout)
+    page = _parse(path)
+    assert [i["alt"] for i in page.imgs] == [
+        "Elevation",
+        "Uncertainty",
+        "Held-out calibration",
+        "Checkpoint errors",
+    ]
+    html = path.read_text(encoding="utf-8")
+    block = cert_heldout["heldout_calibration"]
+    assert '<div class="warn" id="heldout-verdict">' in html
+    assert all(str(escape(v)) in html for v in block["verdict"])
+    assert html.count('<tr><td class="num">') >= block["n_folds"]  # per-fold rows
+    again = write_report(tmp_path / "h2.html", product=product, certificate=cert_heldout)
+    assert again.read_bytes() == path.read_bytes()  # deterministic
+    full = write_report(
+        tmp_path / "f.html", product=product, certificate=cert_heldout, truth=demo.truth
+    )
+    assert len(_parse(full).imgs) == 6  # + error and truth calibration
+
+
+def test_report_says_when_heldout_coverage_is_nominal(demo, cert_heldout, tmp_path):
+    from toolkit.certify import heldout_block
+
+    good = dict(cert_heldout["heldout_calibration"], coverage_68=0.70, coverage_95=0.94)
+    cert = dict(cert_heldout, heldout_calibration=heldout_block(good))
+    assert cert["heldout_calibration"]["verdict"] == []
+    html = write_report(
+        tmp_path / "g.html", product=demo.maps["gp_satellite"], certificate=cert
+    ).read_text(encoding="utf-8")
+    assert 'class="warn" id="heldout-verdict"' not in html
+    assert '<p class="pass" id="heldout-verdict">' in html and "within 5 percentage" in html

@@ -25,6 +25,7 @@ from terrain.atomic import atomic_path
 from terrain.errors import bad_input
 from terrain.grid import check_same_crs
 from terrain.metrics import interval_coverage, standardized_error_stats
+from terrain.validation import CrossValidation, coverage_verdict
 
 from .certify_io import (
     Checkpoints,
@@ -46,6 +47,7 @@ __all__ = [
     "certificate_json",
     "check_output_path",
     "conventional_interval",
+    "heldout_block",
     "read_checkpoints",
     "read_dem",
     "sample_bilinear",
@@ -142,6 +144,7 @@ def certify(
     feature: str = "contour",
     crs: Any = None,
     created: str | None = None,
+    heldout: CrossValidation | Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Certify the vertical accuracy of ``dem`` against ``checkpoints``.
 
@@ -167,13 +170,16 @@ def certify(
         CRS of checkpoints that name none (see :func:`as_checkpoints`).
     created : str, optional
         A timestamp to record; none is recorded otherwise (reproducible bytes).
+    heldout : terrain.CrossValidation or its ``to_dict()``, optional
+        Spatial block cross-validation of the map's GP (:func:`terrain.cross_validate`):
+        adds the ``heldout_calibration`` block (:func:`heldout_block`). Default: none.
 
     Returns
     -------
     dict
         JSON-ready certificate; keys ``schema, dem, checkpoints, parameters, accuracy,
         contour_interval, verdicts, calibration, error_histogram, seed, software`` (and
-        ``created`` when given).
+        ``created``, ``heldout_calibration`` when given).
 
     Raises
     ------
@@ -189,6 +195,7 @@ def certify(
         math.isfinite(float(contour_interval_m)) and float(contour_interval_m) > 0
     ):
         raise bad_input("contour_interval_m", contour_interval_m, "a positive interval (m)", "")
+    heldout_cal = None if heldout is None else heldout_block(heldout)  # fail before any work
     raster = read_dem(dem)
     cps = as_checkpoints(checkpoints, crs)
     check_same_crs(cps.crs, raster.grid.crs, f"checkpoints ({cps.source})", "DEM")
@@ -309,7 +316,82 @@ def certify(
     }
     if created is not None:
         cert["created"] = str(created)
+    if heldout_cal is not None:
+        cert["heldout_calibration"] = heldout_cal
     return _clean(cert)
+
+
+# --------------------------------------------------------------------------- held-out sigma
+_HELDOUT_SCORES = (
+    "n",
+    "rmse_m",
+    "mean_error_m",
+    "nlpd",
+    "coverage_68",
+    "coverage_95",
+    "z_mean",
+    "z_std",
+    "mean_sd_m",
+)
+
+
+def heldout_block(
+    cv: CrossValidation | Mapping[str, Any], tolerance_points: float = 5.0
+) -> dict[str, Any]:
+    """The certificate's "sigma checked on held-out data" block (``heldout_calibration``).
+
+    Parameters
+    ----------
+    cv : terrain.CrossValidation or mapping
+        Output of :func:`terrain.cross_validate`, its ``to_dict()`` (e.g. read from JSON), or
+        a block this function made (re-read from a certificate).
+    tolerance_points : float
+        Coverage off nominal by more than this many percentage points gets a verdict
+        sentence (:func:`terrain.validation.coverage_verdict`).
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``method`` ("spatial block k-fold"), ``block_size_m``, ``n_folds``,
+        ``n_blocks``, ``seed``, ``refit``, ``predictive``; pooled ``n, rmse_m, mean_error_m
+        (map - held-out sample), nlpd, coverage_68, coverage_95`` (fractions), ``z_mean,
+        z_std, mean_sd_m``; ``calibration`` (levels, observed); ``folds`` (one row each);
+        ``tolerance_points`` and ``verdict`` (sentences, empty when both coverages are in).
+
+    Raises
+    ------
+    terrain.errors.InputError
+        ``cv`` is neither, or lacks pooled scores.
+    """
+    d = cv.to_dict() if isinstance(cv, CrossValidation) else cv
+    fix = "pass terrain.cross_validate(...) or its to_dict()"
+    if not isinstance(d, Mapping):
+        raise bad_input("heldout", type(cv).__name__, "a terrain.CrossValidation", fix)
+    pooled = d.get("pooled", d)  # a block read back from a certificate holds them flat
+    missing = [k for k in _HELDOUT_SCORES if not isinstance(pooled, Mapping) or k not in pooled]
+    if missing:
+        raise bad_input("heldout", f"no pooled {missing}", "CrossValidation.to_dict()", fix)
+    folds = [
+        {k: row.get(k) for k in ("fold", "n_train", "n_blocks", *_HELDOUT_SCORES)}
+        for row in d.get("folds") or []
+    ]
+    block = {
+        "method": "spatial block k-fold",
+        "block_size_m": d.get("block_size_m"),
+        "block_size_rule": d.get("block_size_rule"),
+        "n_folds": d.get("n_folds"),
+        "n_blocks": d.get("n_blocks"),
+        "seed": d.get("seed"),
+        "refit": d.get("refit"),
+        "predictive": d.get("predictive"),
+        "hyperparameters": d.get("hyperparameters"),
+        **{k: pooled[k] for k in _HELDOUT_SCORES},
+        "calibration": pooled.get("calibration"),
+        "folds": folds,
+        "tolerance_points": float(tolerance_points),
+        "verdict": coverage_verdict(dict(pooled), tolerance_points),
+    }
+    return _clean(block)
 
 
 def certificate_json(cert: dict[str, Any]) -> str:

@@ -141,6 +141,33 @@ def _fig_calibration(raster: DemRaster, truth: np.ndarray, cert: Mapping) -> dic
     return {"title": "Calibration", "src": _png(fig), "caption": caption}
 
 
+def _fig_heldout(cert: Mapping) -> dict[str, str]:
+    """The held-out calibration curve (certificate ``heldout_calibration``), axes as
+    :func:`_fig_calibration`, with the checkpoint coverages beside it when there are some."""
+    plt = _plt()
+    block = cert["heldout_calibration"]
+    curve = block.get("calibration") or {}
+    fig, ax = plt.subplots(figsize=(4.8, 4.4), constrained_layout=True)
+    ax.plot([0, 1], [0, 1], "k--", lw=0.8, label="calibrated")
+    if curve.get("levels"):
+        ax.plot(curve["levels"], curve["observed"], "o-", c="tab:purple", label="held-out samples")
+    ax.plot(
+        [0.6827, 0.95], [block["coverage_68"], block["coverage_95"]], "D", c="tab:purple", mfc="w"
+    )
+    cal = cert.get("calibration")
+    if cal:
+        ax.plot([0.6827, 0.95], [cal["coverage_68"], cal["coverage_95"]], "s", label="checkpoints")
+    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="nominal level", ylabel="empirical coverage")
+    ax.set_title("Held-out calibration of the 1-sigma")
+    ax.legend(loc="upper left")
+    caption = (
+        f"spatial block {_fmt(block.get('n_folds'))}-fold cross-validation, blocks of "
+        f"{_fmt(block.get('block_size_m'))} m; each held-out sample against "
+        "N(mu, sd^2 + nugget + z_var) (terrain.cross_validate)"
+    )
+    return {"title": "Held-out calibration", "src": _png(fig), "caption": caption}
+
+
 def _fig_histogram(hist: Mapping) -> dict[str, str]:
     plt = _plt()
     edges, counts = np.asarray(hist["edges_m"], float), np.asarray(hist["counts"], float)
@@ -330,6 +357,8 @@ def write_report(
         figures.append(_fig_error(raster, truth_v))
         if raster.elevation_std is not None:
             figures.append(_fig_calibration(raster, truth_v, cert))
+    if cert.get("heldout_calibration"):
+        figures.append(_fig_heldout(cert))
     if cert.get("error_histogram"):
         figures.append(_fig_histogram(cert["error_histogram"]))
     if trajectory is not None:
@@ -346,6 +375,7 @@ def write_report(
         title=title,
         cert=cert,
         acc=cert.get("accuracy") or {},
+        heldout=cert.get("heldout_calibration"),
         figures=figures,
         coverage=dict(coverage or {}),
         provenance=raster.provenance,

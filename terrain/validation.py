@@ -1,0 +1,390 @@
+"""Spatial block cross-validation: the map's 1-sigma checked on held-out samples, no truth.
+
+A GP on dense rover tracks predicts a randomly held-out sample from a neighbour a metre away,
+so random point folds flatter it: they test interpolation along the tracks, not the map
+between them. :func:`cross_validate` holds out whole square blocks of the survey instead
+(Roberts et al. 2017, *Ecography* 40: 913, "block cross-validation"): the samples' bounding
+box is cut into blocks of ``block_size`` metres on a lattice anchored at its south-west
+corner, the non-empty blocks are shuffled with ``numpy.random.default_rng(seed)`` and dealt
+greedily, each to the fold that holds the fewest samples so far (folds balanced by count).
+
+Each fold is predicted by a clone of the estimator fitted on the other folds. A held-out
+*sample* is an observation, not the surface: its predictive distribution is
+``N(mu, sd_f^2 + nugget + z_var_i)``, with ``mu``, ``sd_f^2 + nugget`` from
+``predict(xy, return_std=True, include_nugget=True)`` and ``z_var_i`` the sample's own stated
+variance (Eq 6). The scores use :mod:`terrain.metrics` on that distribution: coverage is a
+fraction (0.6827 and 0.95 nominal), ``z = (obs - mu) / sd`` (the metrics' sign), while the
+mean error is ``mu - obs`` (the certificate's sign: positive, the map is too high).
+
+Cost: O(n log n) for the blocks plus one fit and one predict per fold in the estimator.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from dataclasses import dataclass, field
+from numbers import Integral
+from typing import Any
+
+import numpy as np
+
+from .errors import bad_input, positive_number
+from .metrics import calibration_curve, interval_coverage, nlpd, rmse, standardized_error_stats
+from .samples import ElevationSamples
+
+__all__ = ["CrossValidation", "coverage_verdict", "cross_validate", "spatial_blocks"]
+
+REFIT_MODES = ("hyperparameters-fixed", "all")
+#: Central intervals checked by the verdict: (label, nominal fraction, half width in sd).
+NOMINAL = (("68 %", 0.6827, 1.0), ("95 %", 0.95, 1.96))
+_HYPER_FIXED = {"nugget_bounds": "fixed", "optimize": False}
+
+
+@dataclass(frozen=True, eq=False)
+class CrossValidation:
+    """Held-out scores of a GP map's mean and 1-sigma (:func:`cross_validate`).
+
+    Attributes
+    ----------
+    folds : list of dict
+        One row per fold: ``fold, n, n_train, n_blocks`` and the scores of ``pooled`` (no
+        curve), plus ``kernel`` / ``nugget`` of the fold's fit when the estimator has them.
+    pooled : dict
+        Scores over every held-out sample: ``n``, ``rmse_m``, ``mean_error_m`` (mu - obs),
+        ``nlpd`` (nats per sample), ``coverage_68``, ``coverage_95`` (fractions),
+        ``z_mean``, ``z_std``, ``mean_sd_m`` and ``calibration`` ``{"levels", "observed"}``.
+    block_size : float
+        Side of the square blocks, metres.
+    n_folds, seed : int
+        Number of folds; seed of the one generator that dealt the blocks.
+    refit : str
+        ``"hyperparameters-fixed"`` or ``"all"``.
+    n_blocks : int
+        Non-empty blocks.
+    block_size_rule : str
+        How ``block_size`` was chosen (``"given"`` or the default rule applied).
+    hyperparameters : dict or None
+        ``{"kernel": repr, "nugget": m^2}`` shared by every fold when fixed (the keys the
+        estimator has), else None.
+    fold : ndarray of shape (n,)
+        Fold of each sample (int).
+    block : ndarray of shape (n,)
+        Block of each sample (int, ``0 .. n_blocks - 1``); a block lies in one fold.
+    prediction, predictive_sd : ndarray of shape (n,)
+        Held-out predictive mean and sd of each sample's observation, metres.
+    """
+
+    folds: list[dict[str, Any]]
+    pooled: dict[str, Any]
+    block_size: float
+    n_folds: int
+    seed: int
+    refit: str
+    n_blocks: int
+    block_size_rule: str
+    hyperparameters: dict[str, Any] | None
+    fold: np.ndarray = field(repr=False)
+    block: np.ndarray = field(repr=False)
+    prediction: np.ndarray = field(repr=False)
+    predictive_sd: np.ndarray = field(repr=False)
+
+    def verdict(self, tolerance_points: float = 5.0) -> list[str]:
+        """Plain-language sentences for pooled coverages off nominal by more than
+        ``tolerance_points`` percentage points; empty when both are within it."""
+        return coverage_verdict(self.pooled, tolerance_points)
+
+    def to_dict(self, include_samples: bool = False) -> dict[str, Any]:
+        """JSON-safe dict (Python scalars and lists) with ``verdict`` at the default tolerance;
+        the per-sample arrays (``fold``, ``block``, ``prediction``, ``predictive_sd``) only
+        on request."""
+        out = {
+            "method": "spatial block k-fold",
+            "block_size_m": self.block_size,
+            "block_size_rule": self.block_size_rule,
+            "n_folds": self.n_folds,
+            "n_blocks": self.n_blocks,
+            "seed": self.seed,
+            "refit": self.refit,
+            "predictive": "N(mu, sd^2 + nugget + z_var) of each held-out sample",
+            "hyperparameters": self.hyperparameters,
+            "pooled": self.pooled,
+            "folds": self.folds,
+            "verdict": self.verdict(),
+        }
+        if include_samples:
+            out.update(
+                fold=self.fold.tolist(),
+                block=self.block.tolist(),
+                prediction=self.prediction.tolist(),
+                predictive_sd=self.predictive_sd.tolist(),
+            )
+        return _json_safe(out)
+
+
+def _json_safe(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple | np.ndarray):
+        return [_json_safe(v) for v in (obj.tolist() if isinstance(obj, np.ndarray) else obj)]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def coverage_verdict(pooled: dict[str, Any], tolerance_points: float = 5.0) -> list[str]:
+    """Sentences for the held-out 68 % / 95 % coverages (fractions in ``pooled``) that are off
+    nominal by more than ``tolerance_points`` percentage points; empty list when both are in.
+    """
+    tol = positive_number("tolerance_points", tolerance_points, "e.g. 5 (percentage points)")
+    out = []
+    for label, nominal, _ in NOMINAL:
+        observed = pooled.get("coverage_" + label[:2])
+        if observed is None or not math.isfinite(observed):
+            continue
+        diff = 100.0 * (observed - nominal)
+        if abs(diff) > tol:
+            side, sigma = ("below", "too small") if diff < 0 else ("above", "too large")
+            out.append(
+                f"held-out {label} coverage {100 * observed:.1f} % is {abs(diff):.1f} points "
+                f"{side} nominal: the map's 1-sigma is {sigma}"
+            )
+    return out
+
+
+def spatial_blocks(
+    xy: np.ndarray, block_size: float, n_folds: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Deal square blocks of samples to folds, balanced by sample count.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (n, 2)
+        Sample locations, metres.
+    block_size : float
+        Block side, metres; the lattice is anchored at ``xy.min(axis=0)``.
+    n_folds : int
+        Number of folds (>= 2).
+    rng : numpy.random.Generator
+        Shuffles the blocks; each then goes to the fold with the fewest samples (ties: the
+        lowest fold number).
+
+    Returns
+    -------
+    fold : ndarray of shape (n,)
+        Fold of each sample, int in ``[0, n_folds)``; every fold is non-empty.
+    block : ndarray of shape (n,)
+        Block of each sample, int in ``[0, n_blocks)`` (non-empty blocks, numbered by
+        lattice column then row).
+    """
+    cell = np.floor((xy - xy.min(axis=0)) / block_size).astype(np.int64)
+    ny = int(cell[:, 1].max()) + 1
+    ids, inverse, counts = np.unique(
+        cell[:, 0] * ny + cell[:, 1], return_inverse=True, return_counts=True
+    )
+    n_blocks = ids.size
+    if n_blocks < n_folds:
+        raise bad_input(
+            "block_size / n_folds",
+            f"{n_blocks} non-empty blocks of {block_size:g} m for {n_folds} folds",
+            "at least as many non-empty blocks as folds",
+            "pass a smaller block_size or fewer n_folds",
+        )
+    loads = np.zeros(n_folds, dtype=np.int64)
+    block_fold = np.empty(n_blocks, dtype=np.int64)
+    for b in rng.permutation(n_blocks):
+        f = int(np.argmin(loads))
+        block_fold[b] = f
+        loads[f] += counts[b]
+    inverse = inverse.ravel()
+    return block_fold[inverse], inverse
+
+
+def _is_fitted(est: Any) -> bool:
+    return any(k.endswith("_") and not k.startswith("__") for k in vars(est))
+
+
+def _clone(est: Any, **overrides: Any) -> Any:
+    """A new unfitted estimator with ``est``'s constructor parameters (scikit-learn style):
+    names from ``inspect.signature(type(est).__init__)``, values from ``getattr(est, name)``;
+    ``overrides`` that the constructor does not take are ignored."""
+    params = [
+        p
+        for p in inspect.signature(type(est).__init__).parameters.values()
+        if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+    ]
+    kwargs = {p.name: getattr(est, p.name) for p in params}
+    kwargs.update({k: v for k, v in overrides.items() if k in kwargs})
+    return type(est)(**kwargs)
+
+
+def _fixed_overrides(est: Any) -> dict[str, Any]:
+    out = dict(_HYPER_FIXED)
+    if hasattr(est, "kernel_"):
+        out["kernel"] = est.kernel_
+    if hasattr(est, "nugget_"):
+        out["nugget"] = est.nugget_
+    return out
+
+
+def _n_blocks(xy: np.ndarray, size: float) -> int:
+    cell = np.floor((xy - xy.min(axis=0)) / size).astype(np.int64)
+    return int(np.unique(cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]).size)
+
+
+def _default_block(est: Any, xy: np.ndarray, n_folds: int) -> tuple[float, str]:
+    """3 x the shortest fitted length scale (extent / 10 without one), halved until there
+    are at least 2 x ``n_folds`` non-empty blocks (at most 20 times)."""
+    kernel = getattr(est, "kernel_", None)
+    try:
+        ell = float(min(np.min(p.lengths) for p in getattr(kernel, "parts", (kernel,))))
+    except (AttributeError, TypeError, ValueError):
+        ell = None
+    if ell is not None and math.isfinite(ell) and ell > 0:
+        size, rule = 3.0 * ell, f"3 x shortest fitted length scale ({ell:.3g} m)"
+    else:
+        size, rule = (float(np.ptp(xy, axis=0).max()) or 1.0) / 10.0, "extent / 10"
+    halvings = 0
+    while halvings < 20 and _n_blocks(xy, size) < 2 * n_folds:
+        size, halvings = size / 2.0, halvings + 1
+    if halvings:
+        rule += f", halved {halvings} x to get >= {2 * n_folds} non-empty blocks"
+    return size, rule
+
+
+def _scores(obs: np.ndarray, mu: np.ndarray, sd: np.ndarray) -> dict[str, Any]:
+    z_mean, z_std = standardized_error_stats(mu, sd, obs)
+    return {
+        "n": int(obs.size),
+        "rmse_m": rmse(mu, obs),
+        "mean_error_m": float(np.mean(mu - obs)),
+        "nlpd": nlpd(mu, sd, obs),
+        "coverage_68": interval_coverage(mu, sd, obs, z=1.0),
+        "coverage_95": interval_coverage(mu, sd, obs, z=1.96),
+        "z_mean": z_mean,
+        "z_std": z_std,
+        "mean_sd_m": float(np.mean(sd)),
+    }
+
+
+def cross_validate(
+    estimator: Any,
+    samples: ElevationSamples,
+    block_size: float | None = None,
+    n_folds: int = 5,
+    seed: int = 0,
+    refit: str = "hyperparameters-fixed",
+) -> CrossValidation:
+    """Spatial block K-fold cross-validation of a GP map's mean and 1-sigma.
+
+    Parameters
+    ----------
+    estimator : TerrainGP or estimator of the same shape
+        ``fit(samples)``, ``predict(xy, return_std=True, include_nugget=True)`` and constructor
+        parameters readable as attributes. Never modified: every fit is on a clone.
+    samples : ElevationSamples
+        The survey; ``z_var`` is each sample's own noise variance, m^2.
+    block_size : float, optional
+        Side of the square blocks, metres. Default: 3 x the shortest fitted length scale
+        (beyond 3 l the squared-exponential correlation is below exp(-4.5) = 1.1 %, so most
+        of a held-out block is not predicted from its own track), or a tenth of the samples'
+        extent when no fitted length scale is known (``refit="all"`` with an unfitted
+        estimator); halved until there are at least 2 x ``n_folds`` non-empty blocks (a
+        narrow corridor, a long length scale). ``CrossValidation.block_size_rule`` says which.
+    n_folds : int
+        Number of folds, >= 2, at most the number of non-empty blocks.
+    seed : int
+        Seed of the one ``numpy.random.Generator`` that deals the blocks to folds. The
+        estimator keeps its own ``seed`` for its own fits.
+    refit : {"hyperparameters-fixed", "all"}
+        ``"hyperparameters-fixed"`` (fast): every fold's clone takes the fitted ``kernel_``
+        and ``nugget_`` with ``nugget_bounds="fixed", optimize=False``, and the original
+        ``mean`` setting, so a mean fitted to data (``"constant"``) is re-fitted on the
+        training folds. An unfitted estimator is first fitted (a clone, on all samples) to
+        get them. The hyperparameters have then seen the held-out samples, a mild leak that
+        ``"all"`` (slow, honest) avoids by refitting everything per fold.
+
+    Returns
+    -------
+    CrossValidation
+        Per-fold and pooled scores, the fold of each sample and its held-out prediction.
+
+    Raises
+    ------
+    terrain.errors.InputError
+        ``samples`` not ElevationSamples, ``n_folds`` < 2, ``block_size`` <= 0 or not finite,
+        unknown ``refit``, an estimator without ``fit`` / ``predict``, or fewer non-empty
+        blocks than folds.
+    """
+    if not isinstance(samples, ElevationSamples):
+        fix = "wrap arrays with ElevationSamples(xy, z, z_var)"
+        raise bad_input("samples", type(samples).__name__, "terrain.ElevationSamples", fix)
+    if not all(callable(getattr(estimator, name, None)) for name in ("fit", "predict")):
+        fix = "pass a terrain.TerrainGP (or an estimator with fit and predict)"
+        raise bad_input("estimator", type(estimator).__name__, "an estimator", fix)
+    if isinstance(n_folds, bool) or not isinstance(n_folds, Integral) or n_folds < 2:
+        raise bad_input("n_folds", n_folds, "an integer >= 2", "e.g. n_folds=5")
+    n_folds = int(n_folds)
+    if refit not in REFIT_MODES:
+        raise bad_input("refit", refit, '"hyperparameters-fixed" or "all"', "pick one")
+
+    reference = estimator
+    if refit == REFIT_MODES[0] and not _is_fitted(estimator):
+        reference = _clone(estimator).fit(samples)
+    if block_size is None:
+        size, rule = _default_block(reference, samples.xy, n_folds)
+    else:
+        size = positive_number("block_size", block_size, "a block side in metres, e.g. 45.0")
+        rule = "given"
+    rng = np.random.default_rng(seed)
+    fold, block = spatial_blocks(samples.xy, size, n_folds, rng)
+    n_blocks = int(block.max()) + 1
+    block_fold = np.empty(n_blocks, dtype=np.int64)
+    block_fold[block] = fold
+    blocks_per_fold = np.bincount(block_fold, minlength=n_folds)
+
+    overrides, hyper = {}, None
+    if refit == REFIT_MODES[0]:
+        overrides = _fixed_overrides(reference)
+        hyper = {k: overrides[k] for k in ("kernel", "nugget") if k in overrides} or None
+        if hyper and "kernel" in hyper:
+            hyper["kernel"] = repr(hyper["kernel"])
+    mu = np.empty(samples.n)
+    sd = np.empty(samples.n)
+    rows = []
+    for k in range(n_folds):
+        test = fold == k
+        model = _clone(estimator, **overrides).fit(samples.subset(~test))
+        m, s = model.predict(samples.xy[test], return_std=True, include_nugget=True)
+        mu[test] = m
+        sd[test] = np.sqrt(np.asarray(s, dtype=float) ** 2 + samples.z_var[test])
+        row = {"fold": k, "n_train": int((~test).sum()), "n_blocks": int(blocks_per_fold[k])}
+        row.update(_scores(samples.z[test], mu[test], sd[test]))
+        if hasattr(model, "kernel_"):
+            row["kernel"] = repr(model.kernel_)
+        if hasattr(model, "nugget_"):
+            row["nugget"] = float(model.nugget_)
+        rows.append(row)
+
+    pooled = _scores(samples.z, mu, sd)
+    levels, observed = calibration_curve(mu, sd, samples.z)
+    pooled["calibration"] = {"levels": levels.tolist(), "observed": observed.tolist()}
+    for a in (fold, block, mu, sd):
+        a.setflags(write=False)
+    return CrossValidation(
+        folds=_json_safe(rows),
+        pooled=_json_safe(pooled),
+        block_size=float(size),
+        n_folds=n_folds,
+        seed=int(seed),
+        refit=refit,
+        n_blocks=int(n_blocks),
+        block_size_rule=rule,
+        hyperparameters=_json_safe(hyper),
+        fold=fold,
+        block=block,
+        prediction=mu,
+        predictive_sd=sd,
+    )

@@ -1,0 +1,222 @@
+"""Spatial block cross-validation (terrain.cross_validate): the 1-sigma checked without truth.
+
+Reference values and their origin:
+- Stub estimator predicting 0 with sd 0 on 100 samples with z_var = 0.04 m^2 (sd 0.2 m) and
+  z cycling through (0.1, -0.1, 0.3, -0.3) m: held-out sd = 0.2 m, |z| / sd = 0.5 or 1.5, so
+  RMSE = sqrt(0.05) = 0.22361 m, mean error 0, coverage 68 % = 0.5, 95 % = 1.0, z mean 0,
+  z sd = sqrt(1.25) = 1.11803, NLPD = 0.5 ln(2 pi 0.04) + 0.5 x 1.25 = -0.06561 nats (hand).
+- A draw of Eq 1 (variance 0.18 m^2, length scale 15 m; terrain.se_random_field) on a
+  200 m site, 5 rover tracks of 79 samples 2.5 m apart, noise sd 0.1 m stated as z_var:
+  with the true kernel fixed, held-out coverage is nominal in expectation. Measured over 16
+  draws (seeds 0-15): 95 % coverage 0.951 (sd 0.020 between draws), 68 % 0.694 (sd 0.054),
+  z sd 0.969 (sd 0.069); this file's draw (seed 0): 0.947, 0.729, 0.946. The tolerances
+  below are ~2.5 between-draw sd.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from terrain import (
+    CrossValidation,
+    ElevationSamples,
+    Grid,
+    InputError,
+    SquaredExponential,
+    TerrainGP,
+    cross_validate,
+    se_random_field,
+)
+from terrain.sampling import sample_dem
+
+VAR, ELL, NOISE = 0.18, 15.0, 0.1  # m^2, m, m
+
+
+@pytest.fixture(scope="module")
+def draw() -> ElevationSamples:
+    grid = Grid.from_bounds((0.0, 0.0, 200.0, 200.0), 1.0)
+    field = xr.DataArray(
+        se_random_field(grid, VAR, ELL, seed=0),
+        coords={"y": grid.y, "x": grid.x},
+        dims=("y", "x"),
+        attrs={"crs_wkt": grid.crs.to_wkt()},
+    )
+    rng = np.random.default_rng(100)
+    xy = np.array(
+        [
+            (x, y + rng.normal(0, 2.0))
+            for y in np.linspace(20, 180, 5)
+            for x in np.arange(2, 198, 2.5)
+        ]
+    )
+    z = sample_dem(field, xy) + rng.normal(0.0, NOISE, len(xy))
+    return ElevationSamples(xy, z, NOISE**2)
+
+
+def _gp(variance: float = VAR, nugget: float = 0.0, **kw) -> TerrainGP:
+    kw = {"mean": 0.0, "nugget_bounds": "fixed", "optimize": False, "method": "exact", **kw}
+    return TerrainGP(SquaredExponential(variance, ELL), nugget=nugget, **kw)
+
+
+class ZeroGP:
+    """Predicts 0 m with sd 0 (plus the nugget when asked): every score is set by the data."""
+
+    def __init__(self, nugget: float = 0.0, tag: str = "stub") -> None:
+        self.nugget, self.tag = nugget, tag
+
+    def fit(self, samples):
+        self.nugget_ = self.nugget
+        return self
+
+    def predict(self, xy, return_std=False, include_nugget=False):
+        sd = np.full(len(xy), math.sqrt(self.nugget_) if include_nugget else 0.0)
+        return (np.zeros(len(xy)), sd) if return_std else np.zeros(len(xy))
+
+
+@pytest.fixture(scope="module")
+def lattice() -> ElevationSamples:
+    g = np.arange(5.0, 100.0, 10.0)
+    xy = np.array([(x, y) for x in g for y in g])
+    z = np.resize([0.1, -0.1, 0.3, -0.3], 100)
+    return ElevationSamples(xy, z, 0.04)
+
+
+def test_hand_reference_values_and_observation_noise(lattice):
+    cv = cross_validate(ZeroGP(), lattice, block_size=20.0, n_folds=5, seed=0)
+    p = cv.pooled
+    assert p["n"] == 100 and p["rmse_m"] == pytest.approx(math.sqrt(0.05), rel=1e-12)
+    assert p["mean_error_m"] == pytest.approx(0.0, abs=1e-15)
+    assert (p["coverage_68"], p["coverage_95"]) == (0.5, 1.0)
+    assert p["z_mean"] == pytest.approx(0.0, abs=1e-15)
+    assert p["z_std"] == pytest.approx(math.sqrt(1.25), rel=1e-12)
+    assert p["nlpd"] == pytest.approx(0.5 * math.log(2 * math.pi * 0.04) + 0.625, rel=1e-12)
+    assert np.allclose(cv.predictive_sd, 0.2)  # the sample's z_var enters the predictive sd
+    assert cv.verdict(tolerance_points=6) == [
+        "held-out 68 % coverage 50.0 % is 18.3 points below nominal: the map's 1-sigma is too small"
+    ]
+    assert cv.verdict(tolerance_points=20) == []
+    # include_nugget=True: the nugget (0.12 m^2) adds to z_var: sd = sqrt(0.16) = 0.4 m
+    fitted = ZeroGP(nugget=0.12).fit(lattice)
+    assert np.allclose(cross_validate(fitted, lattice, block_size=20.0).predictive_sd, 0.4)
+    assert cv.hyperparameters == {"nugget": 0.0}  # fitted on a clone: the stub has no kernel
+    assert not hasattr(ZeroGP(), "nugget_")
+
+
+def test_true_kernel_is_calibrated_on_held_out_blocks(draw):
+    cv = cross_validate(_gp().fit(draw), draw, seed=0)
+    assert cv.block_size == 3 * ELL and cv.block_size_rule.startswith("3 x shortest")
+    p = cv.pooled
+    assert abs(p["coverage_95"] - 0.95) <= 0.05
+    assert abs(p["coverage_68"] - 0.6827) <= 0.12
+    assert abs(p["z_std"] - 1.0) <= 0.2 and abs(p["z_mean"]) <= 0.3
+    assert cv.verdict(tolerance_points=10) == []
+    levels, observed = (np.asarray(p["calibration"][k]) for k in ("levels", "observed"))
+    assert levels.shape == observed.shape and np.all(np.diff(observed) >= 0)
+    assert np.max(np.abs(observed - levels)) <= 0.12
+    assert cv.hyperparameters == {"kernel": repr(SquaredExponential(VAR, ELL)), "nugget": 0.0}
+
+
+def test_over_confident_map_under_covers_and_verdict_says_so(draw):
+    over = _gp(variance=VAR / 100, nugget=1e-6).fit(draw)
+    cv = cross_validate(over, draw, seed=0)
+    assert cv.pooled["coverage_95"] < 0.75 and cv.pooled["z_std"] > 2.0
+    text = " ".join(cv.verdict())
+    assert "held-out 95 % coverage" in text and "below nominal" in text and "too small" in text
+    # Random point folds (1 m blocks: one sample each) flatter the map next to its tracks.
+    rand = cross_validate(over, draw, block_size=1.0, seed=0)
+    assert rand.n_blocks == draw.n
+    assert rand.pooled["rmse_m"] < 0.8 * cv.pooled["rmse_m"]
+    assert rand.pooled["coverage_95"] > cv.pooled["coverage_95"] + 0.1
+
+
+def test_folds_are_whole_blocks_disjoint_balanced_and_cover_all_samples(draw):
+    cv = cross_validate(_gp().fit(draw), draw, block_size=30.0, n_folds=4, seed=3)
+    assert cv.fold.shape == (draw.n,) and set(np.unique(cv.fold)) == {0, 1, 2, 3}
+    cell = np.floor((draw.xy - draw.xy.min(axis=0)) / 30.0).astype(int)
+    _, ours = np.unique(cell, axis=0, return_inverse=True)
+    assert cv.n_blocks == ours.max() + 1
+    # same partition into blocks, each block in exactly one fold
+    assert len(set(zip(ours.ravel().tolist(), cv.block.tolist(), strict=True))) == cv.n_blocks
+    for b in range(cv.n_blocks):
+        assert np.unique(cv.fold[cv.block == b]).size == 1
+    sizes = np.bincount(cv.fold)
+    assert [r["n"] for r in cv.folds] == sizes.tolist() and sizes.sum() == draw.n
+    assert all(r["n"] + r["n_train"] == draw.n for r in cv.folds)
+    assert sum(r["n_blocks"] for r in cv.folds) == cv.n_blocks
+    assert sizes.max() <= 1.5 * sizes.min()
+
+
+def test_same_seed_same_result(draw):
+    gp = _gp().fit(draw)
+    a = cross_validate(gp, draw, seed=7).to_dict(include_samples=True)
+    assert cross_validate(gp, draw, seed=7).to_dict(include_samples=True) == a
+    assert cross_validate(gp, draw, seed=8).to_dict(include_samples=True)["fold"] != a["fold"]
+    text = json.dumps(a, allow_nan=False)  # JSON-safe
+    assert json.loads(text)["method"] == "spatial block k-fold"
+
+
+def test_mean_is_refitted_on_the_training_folds(draw):
+    """With hyperparameters fixed, a data-fitted mean ("constant") is fitted on the training
+    folds only: the held-out samples never inform it."""
+    seen: list[float] = []
+
+    class Spy(TerrainGP):
+        def fit(self, samples):
+            super().fit(samples)
+            seen.append((self.mean_.value_, float(samples.z.mean())))
+            return self
+
+    gp = Spy(SquaredExponential(VAR, ELL), mean="constant", optimize=False, method="exact")
+    gp.fit(draw)
+    seen.clear()
+    cv = cross_validate(gp, draw, seed=0)
+    assert len(seen) == cv.n_folds and all(a == pytest.approx(b) for a, b in seen)
+    assert len({a for a, _ in seen}) == cv.n_folds
+
+
+def test_unfitted_estimator_and_refit_all(draw):
+    gp = TerrainGP(SquaredExponential(VAR, ELL), mean=0.0, n_restarts=0, method="exact")
+    cv = cross_validate(gp, draw, seed=0)  # fits a clone on all samples first
+    assert not hasattr(gp, "kernel_")  # the caller's estimator is left unfitted
+    ell = float(cv.hyperparameters["kernel"].split("lengthscale=")[1].rstrip(")"))
+    assert cv.block_size == pytest.approx(3 * ell, rel=1e-3)
+    assert len({r["kernel"] for r in cv.folds}) == 1
+    honest = cross_validate(gp, draw, seed=0, refit="all")
+    extent = float(np.ptp(draw.xy, axis=0).max())
+    assert honest.block_size == pytest.approx(extent / 10) and honest.hyperparameters is None
+    assert len({r["kernel"] for r in honest.folds}) == honest.n_folds  # refitted per fold
+    assert isinstance(honest, CrossValidation) and honest.refit == "all"
+
+
+def test_default_block_is_halved_until_there_are_enough_blocks(draw):
+    # l = 100 m: 3 l = 300 m covers the 196 m x ~166 m box in 1 block; 150 m gives 4,
+    # 75 m gives 9 (< 2 x 5 folds), 37.5 m gives 30.
+    gp = TerrainGP(SquaredExponential(VAR, 100.0), mean=0.0, optimize=False, method="exact")
+    cv = cross_validate(gp.fit(draw), draw, seed=0)
+    assert cv.block_size == 37.5 and cv.n_blocks >= 10
+    assert cv.block_size_rule.endswith("halved 3 x to get >= 10 non-empty blocks")
+
+
+def test_bad_input(draw, lattice):
+    gp = ZeroGP()
+    with pytest.raises(InputError, match=r"block_size / n_folds.*Fix: pass a smaller block_size"):
+        cross_validate(gp, lattice, block_size=1000.0, n_folds=5)
+    for bad in (1, 2.5, "5", None):
+        with pytest.raises(InputError, match="n_folds: expected an integer >= 2"):
+            cross_validate(gp, lattice, n_folds=bad)
+    for bad in (0.0, -5.0, float("nan")):
+        with pytest.raises(InputError, match="block_size"):
+            cross_validate(gp, lattice, block_size=bad)
+    with pytest.raises(InputError, match="samples: expected terrain.ElevationSamples"):
+        cross_validate(gp, np.column_stack([lattice.xy, lattice.z]))
+    with pytest.raises(InputError, match="refit"):
+        cross_validate(gp, lattice, block_size=20.0, refit="none")
+    with pytest.raises(InputError, match="estimator"):
+        cross_validate(object(), lattice)
+    with pytest.raises(ValueError, match="tolerance_points"):  # InputError is a ValueError
+        cross_validate(gp, lattice, block_size=20.0).verdict(tolerance_points=0)
