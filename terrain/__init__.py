@@ -31,6 +31,7 @@ from .metrics import (
 )
 from .posterior import HyperPosterior, ShortChainWarning, sample_hyperparameters
 from .prior import ConstantMean, TriangulatedMean, as_mean_function, coarse_dem
+from .raster_mean import RasterMean
 from .samples import ElevationSamples
 from .sampling import LandmarkNoise, sample_along_path, sample_dem
 from .synthetic import TerrainFeatures, default_site, random_terrain, terrain_function
@@ -55,6 +56,7 @@ __all__ = [
     "NotFittedError",
     "NumericalError",
     "PaperTuning",
+    "RasterMean",
     "ShortChainWarning",
     "SquaredExponential",
     "SumKernel",

@@ -16,7 +16,7 @@ from pyproj import CRS
 
 from .errors import CRSMismatchError, bad_input
 
-__all__ = ["DEFAULT_CRS", "Grid", "as_crs", "check_same_crs"]
+__all__ = ["DEFAULT_CRS", "Grid", "as_crs", "check_same_crs", "dataarray_crs", "north_up"]
 
 #: UTM zone 8N (WGS 84): Juneau and the Mendenhall Glacier, the paper's field site.
 DEFAULT_CRS = CRS.from_epsg(32608)
@@ -53,6 +53,119 @@ def check_same_crs(a: CRS | None, b: CRS | None, what_a: str, what_b: str) -> No
             f"{what_b}.crs ({CRS.from_user_input(b).to_string()}). Fix: reproject one of them "
             "(pyproj.Transformer) so both are in the same projected CRS."
         )
+
+
+_SPACING_RTOL = 1e-3  # a coordinate may stray this fraction of a cell from a regular lattice
+
+
+def _coord(da: Any, name: str) -> np.ndarray:
+    """The values of coordinate ``name`` of ``da``, or an :class:`InputError` naming it."""
+    try:
+        return np.asarray(da[name].values)
+    except (KeyError, AttributeError, TypeError) as exc:
+        dims = tuple(getattr(da, "dims", ()))
+        raise bad_input(
+            f"coordinate {name!r}",
+            f"dims {dims}",
+            "cell-centre coordinates named 'x' and 'y'",
+            "rename them, e.g. da.rename({'lon': 'x', 'lat': 'y'})",
+        ) from exc
+
+
+def _spacing(c: np.ndarray, name: str) -> float:
+    """Signed cell size of the 1-D centre coordinate ``c`` (>= 2 values), checked regular.
+
+    A lattice is regular when every coordinate lies within ``_SPACING_RTOL`` of a cell of
+    ``c[0] + i * step`` (step = ``c[1] - c[0]``, the value the grid keeps).
+    """
+    if not np.all(np.isfinite(c)):
+        raise bad_input(f"{name} coordinates", "NaN or inf", "finite values", "repair them")
+    step = float(c[1] - c[0])
+    if step == 0:
+        raise bad_input(f"{name} coordinates", c[:2].tolist(), "distinct values", "repair them")
+    dev = np.abs(c - (c[0] + step * np.arange(c.size)))
+    if dev.max() > _SPACING_RTOL * abs(step):
+        gaps = np.diff(c)
+        i = int(np.argmax(np.abs(gaps - step)))
+        raise bad_input(
+            f"{name} coordinates",
+            f"spacing {step:g} then {gaps[i]:g} (between {c[i]:g} and {c[i + 1]:g})",
+            "regularly spaced cell centres (a raster)",
+            "resample onto a regular grid first (rasterio.warp.reproject or xarray interp)",
+        )
+    return step
+
+
+def _attr_resolution(da: Any, axis: int) -> float:
+    try:
+        return float(da.attrs["resolution"][axis])
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        raise bad_input(
+            "attrs['resolution']",
+            da.attrs.get("resolution"),
+            "(dx, dy) in metres for a raster with a single row or column",
+            "set da.attrs['resolution'] = (dx, dy)",
+        ) from exc
+
+
+def dataarray_crs(da: Any) -> CRS | None:
+    """The CRS recorded on a DataArray / Dataset, or ``None``.
+
+    Looked up in this order: ``attrs['crs_wkt']``, ``attrs['crs']``, a rioxarray / CF
+    ``spatial_ref`` coordinate (its ``attrs['crs_wkt']`` or ``attrs['spatial_ref']``), and
+    ``da.rio.crs`` when rioxarray is installed (optional). Geographic CRSs are returned as
+    they are (a :class:`Grid` itself needs a projected one).
+    """
+    attrs = getattr(da, "attrs", {}) or {}
+    candidates: list[tuple[str, Any]] = [
+        ("attrs['crs_wkt']", attrs.get("crs_wkt")),
+        ("attrs['crs']", attrs.get("crs")),
+    ]
+    coords = getattr(da, "coords", {})
+    if "spatial_ref" in coords:
+        ref = coords["spatial_ref"].attrs
+        candidates.append(("spatial_ref.attrs['crs_wkt']", ref.get("crs_wkt")))
+        candidates.append(("spatial_ref.attrs['spatial_ref']", ref.get("spatial_ref")))
+    for where, value in candidates:
+        if value is None or (isinstance(value, str) and not value.strip()):
+            continue
+        try:
+            return CRS.from_user_input(value)
+        except Exception as exc:  # pyproj's CRSError
+            raise bad_input(where, value, "a CRS pyproj understands", "fix or drop it") from exc
+    try:
+        import rioxarray  # noqa: F401  (registers the .rio accessor)
+    except ImportError:
+        return None
+    try:
+        rio_crs = da.rio.crs
+    except Exception:  # no .rio accessor on this object, or no CRS to read
+        return None
+    return None if rio_crs is None else CRS.from_user_input(rio_crs.to_wkt())
+
+
+def north_up(da: Any) -> Any:
+    """``da`` sorted so that ``x`` increases and ``y`` decreases: the row order of
+    :class:`Grid` (row 0 is the northern edge). Returns ``da`` itself when already so.
+
+    Parameters
+    ----------
+    da : xarray.DataArray or xarray.Dataset
+        A raster with 1-D coordinates ``x`` and ``y`` (y ascending, as NetCDF files often
+        store it, is the usual reason to call this).
+
+    Returns
+    -------
+    xarray.DataArray or xarray.Dataset
+        The same data and attributes, rows and columns reordered where needed.
+    """
+    x = np.asarray(_coord(da, "x"), float)
+    y = np.asarray(_coord(da, "y"), float)
+    if np.any(np.diff(x) <= 0):
+        da = da.sortby("x")
+    if np.any(np.diff(y) >= 0):
+        da = da.sortby("y", ascending=False)
+    return da
 
 
 @dataclass(frozen=True)
@@ -228,13 +341,34 @@ class Grid:
 
     @classmethod
     def from_dataarray(cls, da: Any) -> Grid:
-        """Recover the grid of a DataArray / Dataset made by :meth:`data_array`."""
-        x = np.asarray(da["x"].values, float)
-        y = np.asarray(da["y"].values, float)
+        """Recover the grid of a DataArray / Dataset: one made by :meth:`data_array`, or a
+        real raster (rioxarray, ``xr.open_dataset``, a GeoTIFF read by hand).
+
+        Parameters
+        ----------
+        da : xarray.DataArray or xarray.Dataset
+            Cell-centre coordinates ``x`` (eastings) and ``y`` (northings), metres, regularly
+            spaced; either may run in either direction (``y`` ascending is common in NetCDF).
+            A single row or column needs ``attrs['resolution'] = (dx, dy)``. The CRS comes
+            from :func:`dataarray_crs`.
+
+        Returns
+        -------
+        Grid
+            Always north-up. The grid does not say in which order ``da`` stores its rows:
+            callers that pair ``da.values`` with :meth:`xy` or :attr:`y` must first sort it
+            with :func:`north_up`.
+        """
+        x = np.asarray(_coord(da, "x"), float)
+        y = np.asarray(_coord(da, "y"), float)
         if x.size < 1 or y.size < 1:
             raise bad_input("x/y coordinates", (x.size, y.size), "non-empty", "check the data")
-        dx = float(x[1] - x[0]) if x.size > 1 else float(da.attrs["resolution"][0])
-        dy = float(y[0] - y[1]) if y.size > 1 else float(da.attrs["resolution"][1])
+        if x.size > 1 and x[1] < x[0]:  # read the lattice in north-up order: the same
+            x = x[::-1]  # grid (to the last bit) whichever way the raster is stored
+        if y.size > 1 and y[1] > y[0]:
+            y = y[::-1]
+        dx = abs(_spacing(x, "x")) if x.size > 1 else _attr_resolution(da, 0)
+        dy = abs(_spacing(y, "y")) if y.size > 1 else _attr_resolution(da, 1)
         if dx <= 0 or dy <= 0:
             raise bad_input(
                 "x/y coordinates",
@@ -242,7 +376,7 @@ class Grid:
                 "x increasing and y decreasing (north-up)",
                 "sort with da.sortby('x').sortby('y', ascending=False)",
             )
-        crs = da.attrs.get("crs_wkt") or da.attrs.get("crs")
+        crs = dataarray_crs(da)
         if crs is None:
             raise bad_input(
                 "attrs['crs_wkt']", None, "the CRS of the raster", "set da.attrs['crs_wkt']"

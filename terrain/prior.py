@@ -10,13 +10,20 @@ all of R^2 (the GP's mean must be evaluable at every query point).
 
 A mean function is any callable ``xy (n, 2) -> (n,)`` in metres; the GP calls
 ``mean.fit(xy, z)`` first when the object has a ``fit`` method.
+
+Linear-mean protocol (R&W Section 2.7, explicit basis functions). A mean whose ``n_coef`` is
+> 0 is ``m(x) = h(x)^T beta``: ``basis(xy)`` gives ``H`` (n, n_coef), ``coef_names`` names the
+columns, ``with_coefficients(beta, cov)`` returns a copy evaluating ``H @ beta`` (the GP
+estimates ``beta`` by generalised least squares), and ``fit(xy, z)`` is the ordinary least
+squares fallback. ``n_coef == 0`` is a fixed mean: evaluate it, do not ask for a basis.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from numbers import Real
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,7 +32,14 @@ from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import Delaunay
 
 from .errors import NotFittedError, bad_input
-from .grid import Grid
+from .grid import Grid, north_up
+from .linear_mean import (
+    OffsetScaleMean,
+    check_coefficients,
+    check_z,
+    format_coefficients,
+    parse_offset,
+)
 
 __all__ = ["ConstantMean", "TriangulatedMean", "as_mean_function", "coarse_dem"]
 
@@ -71,6 +85,7 @@ def coarse_dem(
         cell east / south of it), so shapes need not divide evenly.
     """
     fine = Grid.from_dataarray(truth)
+    truth = north_up(truth)  # rows north first, as the grid's cell centres
     coarse = fine.coarsen(cells)
     if not (np.isfinite(noise) and noise >= 0):
         raise bad_input("noise", noise, "a standard deviation >= 0 in metres", "e.g. 0.5")
@@ -112,10 +127,19 @@ class ConstantMean:
     value : float, optional
         The constant; ``None`` means "the mean of the observations" (the paper's default,
         Section II-C), set by :meth:`fit`.
+
+    Notes
+    -----
+    With ``value=None`` this is a linear mean (:mod:`terrain.linear_mean`) with one
+    coefficient: ``basis`` is a column of ones, ``coef_names == ("mean_m",)``, so a GP may
+    estimate the constant by generalised least squares; with a given value ``n_coef == 0``.
     """
 
     value: float | None = None
     value_: float | None = None
+    coef_cov_: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    coef_names = ("mean_m",)
 
     def __post_init__(self) -> None:
         for name in ("value", "value_"):
@@ -125,19 +149,40 @@ class ConstantMean:
         if self.value is not None and self.value_ is None:
             object.__setattr__(self, "value_", float(self.value))
 
-    def fit(self, xy: np.ndarray, z: np.ndarray) -> ConstantMean:
-        """A fitted copy: ``value_`` = ``value`` if given, else the mean of ``z`` (n,)."""
-        z = np.asarray(z, dtype=float)
-        if z.ndim != 1 or z.size == 0 or not np.all(np.isfinite(z)):
+    @property
+    def n_coef(self) -> int:
+        """1 when the constant is estimated (``value=None``), 0 when it is given."""
+        return 1 if self.value is None else 0
+
+    @property
+    def coef_(self) -> np.ndarray | None:
+        """``[value_]`` once estimated (``value=None``), else ``None``."""
+        return None if self.value is not None or self.value_ is None else np.array([self.value_])
+
+    def basis(self, xy: np.ndarray) -> np.ndarray:
+        """A column of ones, shape (n, 1) (only for ``value=None``)."""
+        if self.n_coef == 0:
             raise bad_input(
-                "z",
-                getattr(z, "shape", z),
-                "a non-empty finite (n,) array",
-                "drop NaN samples first",
+                "mean.value",
+                self.value,
+                "None for a mean with a linear coefficient (n_coef > 0)",
+                "check mean.n_coef first; a fixed mean is evaluated as mean(xy)",
             )
-        if len(_check_xy(xy)) != z.size:
-            raise bad_input("xy", len(xy), f"{z.size} points, one per z", "align xy and z")
-        return replace(self, value_=float(self.value if self.value is not None else z.mean()))
+        return np.ones((len(_check_xy(xy)), 1))
+
+    def with_coefficients(self, beta: Any, cov: Any) -> ConstantMean:
+        """A copy with ``value_ = beta[0]`` (m) and ``coef_cov_ = cov`` (1, 1), m^2."""
+        beta, cov = check_coefficients(self, beta, cov)
+        return replace(self, value_=float(beta[0]), coef_cov_=cov)
+
+    def fit(self, xy: np.ndarray, z: np.ndarray) -> ConstantMean:
+        """A fitted copy: ``value_`` = ``value`` if given, else the mean of ``z`` (n,) (the
+        least-squares constant, with ``coef_cov_ = var(z) / n``, NaN for one sample)."""
+        xy, z = check_z(xy, z)
+        if self.value is not None:
+            return replace(self, value_=float(self.value))
+        var = float(z.var(ddof=1)) / z.size if z.size > 1 else np.nan
+        return replace(self, value_=float(z.mean()), coef_cov_=np.array([[var]]))
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         """The constant at each of ``xy`` (n, 2) -> (n,)."""
@@ -148,8 +193,14 @@ class ConstantMean:
             )
         return np.full(len(_check_xy(xy)), self.value_)
 
+    def __repr__(self) -> str:
+        text = f"ConstantMean(value={self.value!r}, value_={self.value_!r}"
+        if self.coef_cov_ is not None and self.coef_ is not None:
+            text += ", " + format_coefficients(self.coef_names, self.coef_, self.coef_cov_)
+        return text + ")"
 
-class TriangulatedMean:
+
+class TriangulatedMean(OffsetScaleMean):
     """Linear interpolation of a coarse DEM on the Delaunay triangulation of its cell centres.
 
     Inside the convex hull of the centres this is the paper's triangular mesh of satellite
@@ -162,7 +213,15 @@ class TriangulatedMean:
     Parameters
     ----------
     coarse : xarray.DataArray
-        Coarse DEM (dims y, x; metres; e.g. from :func:`coarse_dem`); all values finite.
+        Coarse DEM (dims y, x, y ascending or descending; metres; e.g. from
+        :func:`coarse_dem`); all values finite.
+    extrapolate : {"linear", "nearest"}
+        Whether one ring of linearly extrapolated cells pads the lattice (see above).
+    offset : {"none", "fit"} or float
+        ``"none"`` (default): the mesh as is. ``"fit"``: ``a + b * mesh(x)``, a linear mean
+        (:mod:`terrain.linear_mean`) with basis ``[1, mesh(xy)]`` and ``coef_names``
+        ``("offset_m", "scale")``, estimated by the GP (or :meth:`fit`, least squares).
+        A number: the mesh plus that many metres.
 
     Attributes
     ----------
@@ -174,7 +233,10 @@ class TriangulatedMean:
         Elevations at the centres, metres.
     """
 
-    def __init__(self, coarse: xr.DataArray, extrapolate: str = "linear") -> None:
+    def __init__(
+        self, coarse: xr.DataArray, extrapolate: str = "linear", offset: str | float = "none"
+    ) -> None:
+        self.offset = parse_offset(offset)
         if extrapolate not in ("linear", "nearest"):
             raise bad_input(
                 "extrapolate",
@@ -191,6 +253,7 @@ class TriangulatedMean:
                 "make one with coarse_dem(truth) or Grid.data_array",
             )
         self.grid = Grid.from_dataarray(coarse)
+        coarse = north_up(coarse)  # values row-major from the north, as grid.xy()
         self.crs = self.grid.crs
         self.points = self.grid.xy()
         self.values = np.asarray(coarse.values, dtype=float).ravel()
@@ -230,7 +293,20 @@ class TriangulatedMean:
             self._edges = ends
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
-        """Mean elevation (m) at ``xy`` (n, 2) -> (n,); never NaN."""
+        """Mean elevation (m) at ``xy`` (n, 2) -> (n,); never NaN. With ``offset="fit"``
+        this is ``a + b * dem(xy)`` and needs the coefficients (:meth:`fit`)."""
+        return self._value(xy)
+
+    @property
+    def fit(self) -> Callable[[np.ndarray, np.ndarray], TriangulatedMean]:
+        """``fit(xy, z)``: least squares of ``z`` on ``[1, mesh(xy)]`` (``offset="fit"``
+        only; a fixed mesh has no ``fit``, so the GP uses it as it is)."""
+        if self.n_coef == 0:
+            raise AttributeError(f"TriangulatedMean(offset={self.offset!r}) has nothing to fit")
+        return self.fit_ols
+
+    def dem(self, xy: np.ndarray) -> np.ndarray:
+        """The mesh itself (m) at ``xy`` (n, 2) -> (n,), before any offset; never NaN."""
         xy = _check_xy(xy)
         if self._interp is None:  # one row or column of cells: interpolate along it
             axis = 0 if self.grid.nx > 1 else 1
@@ -260,7 +336,9 @@ class TriangulatedMean:
         return (
             f"TriangulatedMean(cells={self.grid.shape}, bounds=({w:.1f}, {s:.1f}, {e:.1f}, "
             f"{n:.1f}), crs={self.crs.to_string()}, elevation {self.values.min():.2f}.."
-            f"{self.values.max():.2f} m)"
+            f"{self.values.max():.2f} m"
+            + ("" if self.offset == "none" else f", {self._coef_text()}")
+            + ")"
         )
 
 
@@ -298,18 +376,32 @@ def as_mean_function(mean: Any) -> MeanFunction:
 
     ``None`` or ``"constant"`` -> :class:`ConstantMean` (mean of the observations); a number
     -> ``ConstantMean(value)``; an ``xarray.DataArray`` (coarse DEM) ->
-    :class:`TriangulatedMean`; our own mean objects are returned as they are; any other
-    callable ``xy (n, 2) -> (n,)`` is wrapped so its output is checked (shape, finite).
+    :class:`TriangulatedMean`; a raster file path (``pathlib.Path``, or a string naming an
+    existing file or ending in ``.tif``/``.tiff``/``.vrt``) or an open rasterio dataset ->
+    :class:`~terrain.raster_mean.RasterMean` (a satellite DEM, ``offset="fit"``); our own mean
+    objects are returned as they are; any other callable ``xy (n, 2) -> (n,)`` is wrapped so
+    its output is checked (shape, finite).
     """
+    from .raster_mean import RasterMean  # here: raster_mean imports this module
+
     if mean is None or (isinstance(mean, str) and mean.lower() == "constant"):
         return ConstantMean()
-    if isinstance(mean, ConstantMean | TriangulatedMean | _CheckedMean):
+    if isinstance(mean, ConstantMean | TriangulatedMean | _CheckedMean | RasterMean):
         return mean
     if isinstance(mean, Real) and not isinstance(mean, bool):
         return ConstantMean(float(mean))
     if isinstance(mean, xr.DataArray):
         return TriangulatedMean(mean)
+    if isinstance(mean, Path) or (
+        isinstance(mean, str)
+        and (Path(mean).is_file() or mean.lower().endswith((".tif", ".tiff", ".vrt")))
+    ):
+        return RasterMean(mean)
+    if all(hasattr(mean, a) for a in ("read", "transform", "crs")):  # a rasterio dataset
+        return RasterMean(mean)
     if callable(mean) and not isinstance(mean, str | type):
         return _CheckedMean(mean)
-    expected = 'None, "constant", a number, a coarse DEM DataArray or a callable xy -> z'
+    expected = (
+        'None, "constant", a number, a coarse DEM DataArray, a DEM file path or a callable xy -> z'
+    )
     raise bad_input("mean", mean, expected, "pass e.g. mean=coarse_dem(truth)")

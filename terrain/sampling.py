@@ -14,7 +14,7 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
 from .errors import bad_input
-from .grid import Grid
+from .grid import Grid, north_up
 from .samples import ElevationSamples
 
 __all__ = ["LandmarkNoise", "sample_along_path", "sample_dem"]
@@ -23,9 +23,11 @@ __all__ = ["LandmarkNoise", "sample_along_path", "sample_dem"]
 def sample_dem(truth, xy: np.ndarray) -> np.ndarray:
     """Bilinear interpolation of a DEM ``DataArray`` at points ``xy`` (n, 2), metres.
 
-    Points outside the cell-centre hull of the DEM are an error (never silently NaN).
+    Points outside the cell-centre hull of the DEM are an error (never silently NaN). The
+    DEM's rows may run north to south or south to north.
     """
     grid = Grid.from_dataarray(truth)
+    truth = north_up(truth)
     xy = np.asarray(xy, dtype=float)
     x, y = grid.x, grid.y
     outside = (xy[:, 0] < x[0]) | (xy[:, 0] > x[-1]) | (xy[:, 1] < y[-1]) | (xy[:, 1] > y[0])
