@@ -37,6 +37,7 @@ bench: setup
 	$(BIN)/python benchmarks/gp_scalable.py --out benchmarks/results/gp_scalable.json
 	$(BIN)/python benchmarks/emcee_posterior.py --out benchmarks/results/emcee_posterior.json
 	$(BIN)/python benchmarks/localization.py --out benchmarks/results/localization.json
+	$(BIN)/python benchmarks/real_terrain.py --out benchmarks/results/real_terrain.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

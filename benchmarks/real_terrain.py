@@ -1,0 +1,511 @@
+"""Real terrain: glacimap vs Delaunay and peer gridders on sites shaped by real DEMs.
+
+    python benchmarks/real_terrain.py --out benchmarks/results/real_terrain.json
+    python benchmarks/real_terrain.py --sites olinda:1:60 --sizes 3000     # name:window:nodes
+    python benchmarks/real_terrain.py --quick                               # olinda, n=3000
+
+Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
+prism — mapped onto 600 m x 600 m at 2 m, 25 m relief); samples: ``track_samples`` (8 rover
+tracks + 10 % scattered, noise sd 0.2 m stated, seed 0). Every method maps the truth's
+300 x 300 cells from the same samples, each in its own process (wall time and peak RSS are
+its own; one at a time: the machine has 2 cores):
+
+``delaunay``      ``terrain.delaunay_linear`` — the reference: RMSEs are on its hull.
+``glacimap``      ``terrain.TerrainGP(seed=0)``, the default estimator (constant mean).
+``glacimap_dem``  the same with ``mean=terrain.coarse_dem(truth)`` (the 8 x 8 prior).
+``rbf_tps64``     scipy ``RBFInterpolator``, thin-plate spline, 64 neighbours, smoothing 0.
+``verde_knn``     ``verde.KNeighbors()`` defaults.
+``verde_spline``  ``verde.BlockReduce(np.median, spacing=4)`` + ``verde.Spline()``; guarded:
+                  skipped when its dense solve would pass the memory or time limit.
+``pykrige_ok``    PyKrige ordinary kriging, spherical variogram on <= 3,000 samples (a
+                  seeded subsample at n = 50,000), 64-point moving window, C backend.
+
+Real DEMs come from Debian packages; when they cannot be fetched the benchmark prints why
+and writes ``{"skipped": reason}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import multiprocessing as mp
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(ROOT / "scripts"))
+from _harness import table, write_json  # noqa: E402
+
+SITES = ("olinda", "rm", "glacier", "prism")
+SIZES = (3000, 50_000)
+METHODS = (
+    "delaunay",
+    "glacimap",
+    "glacimap_dem",
+    "rbf_tps64",
+    "verde_knn",
+    "verde_spline",
+    "pykrige_ok",
+)
+WITH_STD = ("glacimap", "glacimap_dem", "pykrige_ok")
+SEED = 0
+# Guards: any case is killed past these; verde_spline is also skipped up front when its dense
+# least-squares solve (~6 n x n float64 arrays) or its extrapolated time would pass them.
+LIMIT_S = 1800.0
+LIMIT_MB = 16_000.0
+SPLINE_LIMIT_S = 600.0
+SPLINE_LIMIT_MB = 12_000.0
+SPLINE_COPIES = 6  # peak RSS of verde.Spline's fit ~ this many m x m float64 arrays
+TARGETS = {"rmse_ratio": 0.8, "cov95": (92.0, 98.0), "cov68": (62.0, 76.0)}
+
+
+def parse_site(spec: str) -> dict[str, Any]:
+    """``name[:window[:nodes]]`` -> site dict (window 0, 40 nodes by default)."""
+    parts = spec.split(":")
+    if len(parts) > 3 or not parts[0]:
+        raise argparse.ArgumentTypeError(f"site: expected name[:window[:nodes]], got {spec!r}")
+    window = int(parts[1]) if len(parts) > 1 else 0
+    nodes = int(parts[2]) if len(parts) > 2 else 40
+    label = parts[0] if (window, nodes) == (0, 40) else f"{parts[0]}:{window}:{nodes}"
+    return {"name": parts[0], "window": window, "nodes": nodes, "label": label}
+
+
+def _data(site: dict, n: int):
+    import real_dems
+
+    from terrain import Grid
+
+    truth = real_dems.glacier_site(site["name"], nodes=site["nodes"], window=site["window"])
+    samples = real_dems.track_samples(truth, n, seed=SEED, stated_var=True)
+    return truth, Grid.from_dataarray(truth), samples
+
+
+def _provenance() -> dict[str, Any]:
+    """Which glacimap ran: the commit, and whether terrain/ or toolkit/ had local edits."""
+    import subprocess
+
+    import terrain
+
+    out: dict[str, Any] = {"terrain": str(Path(terrain.__file__).resolve().parent)}
+    try:
+        git = ["git", "-C", str(ROOT)]
+        out["commit"] = subprocess.run(
+            [*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            [*git, "status", "--porcelain", "terrain", "toolkit"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        out["terrain_toolkit_edited"] = bool(dirty.strip())
+    except (OSError, subprocess.CalledProcessError):
+        out["commit"] = None
+    return out
+
+
+def _jsonable(v: Any) -> Any:
+    if v is None or isinstance(v, (bool, int, str)):
+        return v
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    return repr(v)
+
+
+def _metrics(pred, std, truth, samples, grid) -> dict[str, Any]:
+    """RMSE on Delaunay's hull and wherever defined; with ``std``: coverage (%), z, NLPD."""
+    from scipy.spatial import Delaunay
+
+    from terrain import evaluate
+
+    off = samples.xy.mean(axis=0)  # as delaunay_linear: the hull of the centred samples
+    hull = (Delaunay(samples.xy - off).find_simplex(grid.xy() - off) >= 0).reshape(grid.shape)
+    t = truth.values
+    ok = np.isfinite(pred)
+    out: dict[str, Any] = {
+        "rmse_hull": float(np.sqrt(np.mean((pred[hull] - t[hull]) ** 2))),
+        "rmse_grid": float(np.sqrt(np.mean((pred[ok] - t[ok]) ** 2))),
+        "defined_fraction": float(ok.mean()),
+        "hull_fraction": float(hull.mean()),
+        "hull_defined": bool(np.all(ok[hull])),
+    }
+    if std is not None:
+        ok &= np.isfinite(std) & (std > 0)
+        e = evaluate(pred[ok], t[ok], std[ok])
+        eh = evaluate(pred[hull & ok], t[hull & ok], std[hull & ok])
+        out.update(
+            cov95=100 * e["coverage_95"],
+            cov68=100 * e["coverage_68"],
+            z_mean=e["z_mean"],
+            z_std=e["z_std"],
+            nlpd=e["nlpd"],
+            cov95_hull=100 * eh["coverage_95"],
+            cov68_hull=100 * eh["coverage_68"],
+            median_std=float(np.median(std[ok])),
+        )
+    return out
+
+
+def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) -> dict:
+    """One method on one site and size; runs in a child process."""
+    import _peers
+
+    truth, grid, samples = _data(site, n)
+    q = grid.xy()
+    info: dict[str, Any] = {}
+    std = None
+    t0 = time.perf_counter()
+    if method == "delaunay":
+        from terrain import delaunay_linear
+
+        pred = delaunay_linear(samples, grid).elevation.values
+    elif method in ("glacimap", "glacimap_dem"):
+        from terrain import TerrainGP, coarse_dem
+
+        kw = {} if method == "glacimap" else {"mean": coarse_dem(truth)}
+        gp = TerrainGP(seed=0, **kw)
+        tf = time.perf_counter()
+        gp.fit(samples)
+        fit_s = getattr(gp, "fit_seconds_", None)
+        tp = time.perf_counter()
+        ds = gp.predict_grid(grid)
+        pred, std = ds.elevation.values, ds.elevation_std.values
+        info = {
+            "fit_s": float(fit_s) if fit_s is not None else tp - tf,
+            "predict_s": time.perf_counter() - tp,
+            "kernel": repr(getattr(gp, "kernel_", None)),
+            "kernel_scores": _jsonable(getattr(gp, "kernel_scores_", None)),
+            "nugget": _jsonable(getattr(gp, "nugget_", None)),
+            "gp_method": _jsonable(getattr(gp, "method_", None)),
+            "lml": _jsonable(getattr(gp, "log_marginal_likelihood_value_", None)),
+        }
+    elif method == "rbf_tps64":
+        pred, std, info = _peers.rbf_tps(samples, q, neighbors=64)
+    elif method == "verde_knn":
+        pred, std, info = _peers.verde_knn(samples, q)
+    elif method == "verde_spline":
+        m = _peers.spline_blocks(samples)
+        need_mb = SPLINE_COPIES * m * m * 8 / 2**20
+        reason = None
+        if need_mb > SPLINE_LIMIT_MB:
+            reason = f"{m} blocks: dense solve needs ~{need_mb:,.0f} MB > {SPLINE_LIMIT_MB:,.0f}"
+        elif spline_pred_s is not None and spline_pred_s > 1.5 * SPLINE_LIMIT_S:
+            reason = (
+                f"{m} blocks: extrapolated (m^3 from n=3000) {spline_pred_s:,.0f} s"
+                f" > 1.5 x {SPLINE_LIMIT_S:.0f} s"
+            )
+        if reason:
+            return {"skipped": reason, "blocks": m, "est_mb": need_mb, "method_s": None}
+        pred, std, info = _peers.verde_spline(samples, q)
+        info["est_mb"] = need_mb
+    elif method == "pykrige_ok":
+        pred, std, info = _peers.pykrige_ok(samples, q, seed=SEED)
+    else:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    method_s = time.perf_counter() - t0
+    pred = np.asarray(pred, float).reshape(grid.shape)
+    std = None if std is None else np.asarray(std, float).reshape(grid.shape)
+    out = _metrics(pred, std, truth, samples, grid)
+    out.update(method_s=method_s, n_samples=samples.n, info=_jsonable(info))
+    return out
+
+
+def _safe_child(func, args, queue) -> None:
+    import resource
+
+    t0 = time.perf_counter()
+    try:
+        out = func(*args)
+    except Exception as exc:  # a broken method is a row with its error, not a hung run
+        out = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+    out["wall_s"] = time.perf_counter() - t0
+    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    queue.put(out)
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def guarded(func, *args, limit_s: float = LIMIT_S, limit_mb: float = LIMIT_MB) -> dict:
+    """``_harness.in_subprocess`` with a watchdog: the child is killed past ``limit_s``
+    seconds or ``limit_mb`` MB resident, and the row says so; a crash is a row too."""
+    import queue as queue_mod
+
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    proc = ctx.Process(target=_safe_child, args=(func, args, q))
+    t0 = time.perf_counter()
+    proc.start()
+    peak = 0.0
+    while True:
+        try:
+            out = q.get(timeout=0.5)
+            proc.join()
+            return out
+        except queue_mod.Empty:
+            pass
+        peak = max(peak, _rss_mb(proc.pid))
+        wall = time.perf_counter() - t0
+        reason = None
+        if wall > limit_s:
+            reason = f"killed: over {limit_s:.0f} s"
+        elif peak > limit_mb:
+            reason = f"killed: resident {peak:,.0f} MB > {limit_mb:,.0f} MB"
+        elif not proc.is_alive() and q.empty():
+            reason = f"child died (exit code {proc.exitcode})"
+        if reason:
+            proc.kill()
+            proc.join()
+            return {"skipped": reason, "wall_s": wall, "peak_rss_mb": peak, "method_s": None}
+
+
+def _ratios(rows: list[dict]) -> None:
+    """Per site and size: RMSE and time relative to Delaunay and RBF of the same run."""
+    by = {}
+    for r in rows:
+        by.setdefault((r["site"], r["n"]), {})[r["method"]] = r
+    for group in by.values():
+        dl, rbf = group.get("delaunay", {}), group.get("rbf_tps64", {})
+        for r in group.values():
+            for ref, key in ((dl, "delaunay"), (rbf, "rbf")):
+                if r.get("rmse_hull") is not None and ref.get("rmse_hull"):
+                    r[f"rmse_over_{key}"] = r["rmse_hull"] / ref["rmse_hull"]
+                if r.get("method_s") is not None and ref.get("method_s"):
+                    r[f"time_over_{key}"] = r["method_s"] / ref["method_s"]
+
+
+def _verdicts(rows: list[dict]) -> list[dict]:
+    """The targets for the glacimap rows: PASS / MISS (— when not measured)."""
+    out = []
+    rbf = {(r["site"], r["n"]): r for r in rows if r["method"] == "rbf_tps64"}
+    for r in rows:
+        if not r["method"].startswith("glacimap") or r.get("rmse_hull") is None:
+            continue
+
+        def pf(ok):
+            return None if ok is None else ("PASS" if ok else "MISS")
+
+        peer = rbf.get((r["site"], r["n"]), {}).get("rmse_hull")
+        ratio = r.get("rmse_over_delaunay")
+        lo95, hi95 = TARGETS["cov95"]
+        lo68, hi68 = TARGETS["cov68"]
+        out.append(
+            {
+                "site": r["site"],
+                "n": r["n"],
+                "method": r["method"],
+                "rmse_over_delaunay": ratio,
+                "rmse_ok": pf(None if ratio is None else ratio <= TARGETS["rmse_ratio"]),
+                "cov95": r.get("cov95"),
+                "cov95_ok": pf(lo95 <= r["cov95"] <= hi95),
+                "cov68": r.get("cov68"),
+                "cov68_ok": pf(lo68 <= r["cov68"] <= hi68),
+                "rmse_over_rbf": r.get("rmse_over_rbf"),
+                "rbf_ok": pf(None if peer is None else r["rmse_hull"] <= peer),
+            }
+        )
+    return out
+
+
+def report(rows: list[dict]) -> list[dict]:
+    _ratios(rows)
+    for r in rows:
+        r["case"] = f"{r['site']} {r['n'] // 1000}k"
+        r["note"] = r.get("skipped") or r.get("error")
+    print(
+        "\nReal terrain: 600 m x 600 m at 2 m (300 x 300 cells), 25 m relief; RMSE on Delaunay's"
+        " hull (m); coverage over the grid (%); times: the method itself (s, data making"
+        " excluded), ratios to Delaunay and RBF of the same run; wall and peak RSS per process"
+    )
+    wc = max(len(r["case"]) for r in rows)
+    wm = max(len(r["method"]) for r in rows)
+    print(
+        table(
+            rows,
+            [
+                ("case", "case".rjust(wc), ""),
+                ("method", "method".rjust(wm), ""),
+                ("rmse_hull", "RMSE hull", ".3f"),
+                ("rmse_over_delaunay", "/Delaunay", ".3f"),
+                ("rmse_grid", "RMSE grid", ".3f"),
+                ("defined_fraction", "defined", ".3f"),
+                ("cov95", "in 95%", ".1f"),
+                ("cov68", "in 68%", ".1f"),
+                ("z_mean", "z mean", ".2f"),
+                ("z_std", "z std", ".2f"),
+                ("nlpd", "NLPD", ".2f"),
+                ("method_s", "time s", ".2f"),
+                ("time_over_delaunay", "t/Delaunay", ".1f"),
+                ("time_over_rbf", "t/RBF", ".2f"),
+                ("wall_s", "wall s", ".1f"),
+                ("peak_rss_mb", "peak MB", ".0f"),
+            ],
+        )
+    )
+    notes = [r for r in rows if r["note"]]
+    for r in notes:
+        print(f"  {r['case']} {r['method']}: {r['note']}")
+    print("\nglacimap: fit / predict seconds, chosen kernel, selection scores (kernel_scores_)")
+    for r in rows:
+        info = r.get("info") or {}
+        if r["method"].startswith("glacimap") and "kernel" in info:
+            print(
+                f"  {r['case']:<12} {r['method']:<13} fit {info['fit_s']:.1f} s, predict"
+                f" {info['predict_s']:.1f} s, {info.get('gp_method')}, nugget"
+                f" {info.get('nugget')}: {info['kernel']}"
+            )
+            if info.get("kernel_scores") is not None:
+                print(f"  {'':<26} scores: {json.dumps(info['kernel_scores'])[:300]}")
+    for r in rows:
+        info = r.get("info") or {}
+        if r["method"] == "pykrige_ok" and "variogram_model" in info:
+            print(
+                f"  {r['case']:<12} pykrige_ok    {info['variogram_model']} on"
+                f" {info['samples_used']} samples"
+                + (" (seeded subsample)" if info["subsampled"] else "")
+                + f", {info['n_closest_points']}-point window, {info['backend']} backend"
+            )
+        if r["method"] == "verde_spline" and "blocks" in info:
+            print(
+                f"  {r['case']:<12} verde_spline  {info['blocks']} blocks of"
+                f" {info['block_spacing_m']:g} m: fit {info['fit_s']:.1f} s, predict"
+                f" {info['predict_s']:.1f} s"
+            )
+    verdicts = _verdicts(rows)
+    if verdicts:
+        print(
+            f"\nTargets: RMSE <= {TARGETS['rmse_ratio']} x Delaunay (on its hull), 95 % coverage"
+            f" {TARGETS['cov95'][0]:.0f}-{TARGETS['cov95'][1]:.0f}, 68 % coverage"
+            f" {TARGETS['cov68'][0]:.0f}-{TARGETS['cov68'][1]:.0f}, RMSE <= RBF's (on the hull)"
+        )
+        print(
+            table(
+                verdicts,
+                [
+                    ("site", "site".rjust(max(len(v["site"]) for v in verdicts)), ""),
+                    ("n", "n", "d"),
+                    ("method", "method".rjust(max(len(v["method"]) for v in verdicts)), ""),
+                    ("rmse_over_delaunay", "/Delaunay", ".3f"),
+                    ("rmse_ok", "<=0.8", ""),
+                    ("cov95", "in 95%", ".1f"),
+                    ("cov95_ok", "92-98", ""),
+                    ("cov68", "in 68%", ".1f"),
+                    ("cov68_ok", "62-76", ""),
+                    ("rmse_over_rbf", "/RBF", ".3f"),
+                    ("rbf_ok", "<=RBF", ""),
+                ],
+            )
+        )
+    return verdicts
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/real_terrain.json"))
+    ap.add_argument(
+        "--sites", nargs="+", type=parse_site, default=None, help="name[:window[:nodes]]"
+    )
+    ap.add_argument("--sizes", nargs="+", type=int, default=None)
+    ap.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    ap.add_argument("--quick", action="store_true", help="olinda only, n = 3000")
+    args = ap.parse_args(argv)
+    sites = args.sites or [parse_site(s) for s in (("olinda",) if args.quick else SITES)]
+    sizes = sorted(args.sizes or ((3000,) if args.quick else SIZES))
+    import real_dems
+
+    prov = _provenance()
+
+    def payload(rows, **extra):
+        return {
+            "benchmark": "real_terrain",
+            "settings": {
+                "sites": sites,
+                "sizes": sizes,
+                "methods": args.methods,
+                "seed": SEED,
+                "grid": "truth's 2 m grid, 300 x 300 cells",
+                "samples": "real_dems.track_samples: 8 tracks + 10 % scattered, sd 0.2 m",
+                "targets": TARGETS,
+                "guards": {
+                    "limit_s": LIMIT_S,
+                    "limit_mb": LIMIT_MB,
+                    "spline_limit_s": SPLINE_LIMIT_S,
+                    "spline_limit_mb": SPLINE_LIMIT_MB,
+                },
+            },
+            "provenance": prov,
+            "results": rows,
+            **extra,
+        }
+
+    try:
+        real_dems.fetch()
+        for s in sites:
+            real_dems.glacier_site(s["name"], nodes=s["nodes"], window=s["window"])
+    except real_dems.RealDataUnavailable as exc:
+        print(f"skipped: {exc}")
+        write_json(args.out, payload([], skipped=str(exc)))
+        return 0
+    rows: list[dict] = []
+    for site in sites:
+        spline_3k: dict | None = None
+        for n in sizes:
+            for method in args.methods:
+                extra = ()
+                limits = {}
+                if method == "verde_spline":
+                    limits = {"limit_s": SPLINE_LIMIT_S, "limit_mb": SPLINE_LIMIT_MB}
+                    info = (spline_3k or {}).get("info") or {}
+                    if info.get("blocks") and n > spline_3k["n"]:
+                        m_small = info["blocks"]
+                        from _peers import spline_blocks
+
+                        _, _, samples = _data(site, n)
+                        m = spline_blocks(samples)
+                        extra = (info["fit_s"] * (m / m_small) ** 3,)
+                row = guarded(case, site, n, method, *extra, **limits)
+                row.update(site=site["label"], n=n, method=method)
+                if method == "verde_spline" and row.get("rmse_hull") is not None:
+                    spline_3k = spline_3k or row
+                rows.append(row)
+                note = row.get("skipped") or row.get("error") or ""
+                print(
+                    f"[{site['label']} n={n}] {method}: {row['wall_s']:.1f} s, peak"
+                    f" {row['peak_rss_mb']:.0f} MB"
+                    + (f", RMSE hull {row['rmse_hull']:.3f}" if "rmse_hull" in row else "")
+                    + (f"  ({note[:160]})" if note else ""),
+                    flush=True,
+                )
+                with contextlib.redirect_stdout(io.StringIO()):  # a killed run keeps its rows
+                    write_json(args.out, payload(rows, partial=True))
+    verdicts = report(rows)
+    write_json(args.out, payload(rows, verdicts=verdicts))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
