@@ -7,6 +7,7 @@
 from .baselines import delaunay_linear
 from .errors import (
     CRSMismatchError,
+    DegenerateFitWarning,
     DuplicateLocationError,
     GlacimapError,
     InputError,
@@ -42,6 +43,7 @@ from .validation import CrossValidation, cross_validate
 __all__ = [
     "DEFAULT_CRS",
     "CRSMismatchError",
+    "DegenerateFitWarning",
     "ConstantMean",
     "CrossValidation",
     "DuplicateLocationError",

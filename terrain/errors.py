@@ -12,6 +12,7 @@ from typing import Any
 
 __all__ = [
     "CRSMismatchError",
+    "DegenerateFitWarning",
     "DuplicateLocationError",
     "GlacimapError",
     "InputError",
@@ -50,6 +51,11 @@ class NumericalError(GlacimapError, ArithmeticError):
 
 class JitterWarning(RuntimeWarning):
     """A kernel matrix needed diagonal jitter to factor; the message says how much."""
+
+
+class DegenerateFitWarning(RuntimeWarning):
+    """A fitted GP is degenerate: its length scale is below the sample spacing, or its map
+    reverts to the prior mean almost everywhere (flat map, uniform 1-sigma)."""
 
 
 class TilingWarning(RuntimeWarning):

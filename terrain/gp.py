@@ -21,33 +21,38 @@ from typing import Any
 
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
-from scipy.optimize import minimize
-from threadpoolctl import threadpool_limits
 
-from .errors import NotFittedError, NumericalError, TilingWarning, bad_input
+from .errors import NotFittedError, TilingWarning, bad_input
+from .gp_hyper import HyperparameterMixin
+from .gp_mean import GLS_MAX_SAMPLES, bind_mean, gls_coefficients, n_coef, variance_term
 from .grid import Grid, check_same_crs
-from .kernels import Kernel, SquaredExponential
-from .likelihood import gaussian_lml
+from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
+from .kernels import Kernel
 from .linalg import cholesky_jitter
 from .prior import as_mean_function
-from .product import software_version, terrain_dataset
+from .product import json_rows, mean_coefficients, software_version, terrain_dataset
 from .samples import ElevationSamples
 from .tiled import TileSpec, long_scale_part, predict_tiled, shortest_lengthscale
 
 __all__ = ["TerrainGP"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
+#: Above n^2 * m multiply-adds (~2 s here) "auto" predicts the variance by the tiled GP.
+EXACT_PREDICT_FLOPS = 4e10
 
 
-class TerrainGP:
+class TerrainGP(HyperparameterMixin):
     """Exact GP regression of elevation on (easting, northing).
 
     Parameters
     ----------
-    kernel : Kernel, optional
-        Covariance of the terrain deviation from the mean, with its initial hyperparameters
-        and search bounds. Default: ``SquaredExponential`` (Eq 1) started at the residual
-        variance and a tenth of the data extent.
+    kernel : "auto", family name(s), Kernel or None
+        Covariance of the terrain deviation from the mean. ``"auto"`` (default) fits the
+        family SE (Eq 1), Matérn 3/2, Matérn 5/2 and their two-scale sums on the fit subset
+        and keeps the best penalised evidence (BIC of Eq 9, :mod:`terrain.kernel_search`);
+        a family name or a list of names restricts the search; a Kernel object is fitted
+        from its initial hyperparameters and bounds; ``None``: ``SquaredExponential``
+        started at the residual variance and a tenth of the data extent.
     mean : "constant", float, xarray.DataArray or callable
         Prior mean: ``"constant"`` is the mean of the observations (the paper's landmark-only
         GP); a coarse DEM ``DataArray`` becomes a :class:`TriangulatedMean` (the paper's
@@ -102,7 +107,7 @@ class TerrainGP:
 
     def __init__(
         self,
-        kernel: Kernel | None = None,
+        kernel: Kernel | str | list[str] | None = "auto",
         mean: Any = "constant",
         nugget: float = 1e-2,
         nugget_bounds: tuple[float, float] | str = (1e-6, 1e2),
@@ -134,6 +139,15 @@ class TerrainGP:
 
     # -- settings ---------------------------------------------------------------------------
     def _check_settings(self) -> None:
+        if self._searches_kernel:
+            candidate_names(self.kernel)
+            if not self.optimize and self.kernel != "auto":
+                raise bad_input(
+                    "optimize",
+                    False,
+                    f"True when kernel={self.kernel!r} (the kernel is chosen by fitting)",
+                    "pass a Kernel object to keep its hyperparameters fixed",
+                )
         if not (np.isfinite(self.nugget) and self.nugget >= 0):
             raise bad_input("nugget", self.nugget, "a variance >= 0 in m^2", "e.g. nugget=0.01")
         if self.fit_nugget:
@@ -171,31 +185,16 @@ class TerrainGP:
             raise bad_input("amplitude_prior_sd", self.amplitude_prior_sd, "> 0", "e.g. 1.0")
 
     @property
+    def _searches_kernel(self) -> bool:
+        """A kernel search: ``"auto"`` or family names (``"auto"`` without ``optimize``
+        keeps the unfitted default SE instead)."""
+        if self.kernel == "auto" and not self.optimize:
+            return False
+        return isinstance(self.kernel, str | list | tuple)
+
+    @property
     def fit_nugget(self) -> bool:
         return not isinstance(self.nugget_bounds, str)
-
-    # -- hyperparameter vector: log([kernel params..., nugget]) -----------------------------
-    def _theta(self, kernel: Kernel, nugget: float) -> np.ndarray:
-        theta = kernel.theta
-        return np.append(theta, np.log(max(nugget, 1e-300))) if self.fit_nugget else theta
-
-    def _unpack(self, theta: np.ndarray, kernel: Kernel) -> tuple[Kernel, float]:
-        theta = np.asarray(theta, dtype=float)
-        k = kernel.n_params
-        if theta.shape != (k + self.fit_nugget,):
-            raise bad_input(
-                "theta",
-                theta.shape,
-                f"shape ({k + self.fit_nugget},): log of "
-                f"{kernel.param_names + (['nugget'] if self.fit_nugget else [])}",
-                "",
-            )
-        nugget = float(np.exp(theta[k])) if self.fit_nugget else float(self.nugget)
-        return kernel.with_theta(theta[:k]), nugget
-
-    def _bounds(self, kernel: Kernel) -> np.ndarray:
-        b = kernel.bounds
-        return np.vstack([b, np.log(self.nugget_bounds)]) if self.fit_nugget else b
 
     # -- fit ------------------------------------------------------------------------------
     def fit(self, samples: ElevationSamples) -> TerrainGP:
@@ -223,9 +222,9 @@ class TerrainGP:
             )
         t0 = time.perf_counter()
         rng = np.random.default_rng(self.seed)
-        mean = as_mean_function(self.mean)
+        mean = bind_mean(as_mean_function(self.mean), samples.crs, samples.xy)
         check_same_crs(getattr(mean, "crs", None), samples.crs, "mean", "samples")
-        if hasattr(mean, "fit"):
+        if hasattr(mean, "fit"):  # a linear mean starts from least squares, then GLS below
             mean = mean.fit(samples.xy, samples.z)
         self.mean_ = mean
         self.crs_ = samples.crs
@@ -235,18 +234,41 @@ class TerrainGP:
         resid = samples.z - np.asarray(mean(samples.xy), dtype=float)
         self.X_train_, self.y_resid_, self.z_var_ = X, resid, np.asarray(samples.z_var)
 
-        kernel = self.kernel if self.kernel is not None else self._default_kernel(X, resid)
         nugget = float(self.nugget)
         self.fit_index_ = np.arange(samples.n)
         self.optimizer_runs_ = []
-        if self.optimize:
-            if self.max_fit_samples is not None and samples.n > self.max_fit_samples:
-                self.fit_index_ = np.sort(
-                    rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
-                )
-            kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
+        self.kernel_scores_ = []
+        if self.optimize and self.max_fit_samples is not None and samples.n > self.max_fit_samples:
+            self.fit_index_ = np.sort(
+                rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
+            )
+        if self._searches_kernel:
+            idx = self.fit_index_
+            choice = select_kernel(
+                X[idx],
+                resid[idx],
+                self.z_var_[idx],
+                candidate_names(self.kernel),
+                fit_nugget=self.fit_nugget,
+                nugget=nugget,
+                nugget_bounds=self.nugget_bounds,
+                spacing=median_spacing(X),
+                rng=rng,
+            )
+            kernel, nugget = choice.kernel, choice.nugget
+            self.kernel_scores_ = choice.scores
+            self.kernel_name_ = choice.name
+            self._vecchia_lml = next(r for r in choice.scores if r["selected"]).get("refined_lml")
+        else:
+            given = self.kernel not in (None, "auto")
+            kernel = self.kernel if given else self._default_kernel(X, resid)
+            self.kernel_name_ = "given"
+            if self.optimize:
+                kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
         self.kernel_, self.nugget_ = kernel, nugget
+        self.degenerate_ = warn_if_degenerate(kernel, X if samples.n < 200_000 else None)
         tiles = self.tiles or TileSpec.for_lengthscale(shortest_lengthscale(kernel))
+        self.tiles_ = tiles
         long_part = long_scale_part(kernel, tiles.halo)
         exact = self.method == "exact" or (
             self.method == "auto"
@@ -267,17 +289,29 @@ class TerrainGP:
                     TilingWarning,
                     stacklevel=2,
                 )
-            # Tiled: no global factor. Eq 9 is reported on the fit subset (exact there).
-            self.tiles_ = tiles
+            # Tiled: no global factor. GLS coefficients of a linear mean on a subset.
+            if n_coef(self.mean_):
+                sub = self.fit_index_[:: max(1, self.fit_index_.size // GLS_MAX_SAMPLES)]
+                self._set_coefficients(samples, idx=sub)
+            self.jitter_ = 0.0
+            self.fit_seconds_ = time.perf_counter() - t0
+            if getattr(self, "_vecchia_lml", None) is not None:
+                self.log_marginal_likelihood_value_ = self._vecchia_lml  # Vecchia Eq 9
+                return self
+            # Eq 9 reported on the fit subset (exact there).
             idx = (
                 self.fit_index_
                 if self.fit_index_.size < samples.n
                 else (np.sort(rng.choice(samples.n, size=min(samples.n, 2000), replace=False)))
             )
             self.log_marginal_likelihood_value_ = self._lml(
-                self._theta(kernel, nugget), kernel, X[idx], resid[idx], self.z_var_[idx], False
+                self._theta(kernel, nugget),
+                kernel,
+                X[idx],
+                self.y_resid_[idx],
+                self.z_var_[idx],
+                False,
             )
-            self.jitter_ = 0.0
             self.fit_seconds_ = time.perf_counter() - t0
             return self
 
@@ -286,6 +320,8 @@ class TerrainGP:
         K[np.diag_indices_from(K)] += self.z_var_ + nugget
         self.L_, self.jitter_ = cholesky_jitter(K, what="TerrainGP kernel matrix")
         del K
+        if n_coef(self.mean_):
+            resid = self._set_coefficients(samples, L=self.L_)
         self.alpha_ = cho_solve((self.L_, True), resid, check_finite=False)
         # Eq 9 / R&W Alg. 2.1 line 8
         self.log_marginal_likelihood_value_ = float(
@@ -296,79 +332,28 @@ class TerrainGP:
         self.fit_seconds_ = time.perf_counter() - t0
         return self
 
-    @staticmethod
-    def _default_kernel(X: np.ndarray, resid: np.ndarray) -> Kernel:
-        extent = float(np.ptp(X, axis=0).max()) or 1.0
-        variance = float(np.var(resid)) or 1.0
-        return SquaredExponential(variance=variance, lengthscale=max(extent / 10.0, 1.0))
-
-    def _optimize(self, kernel, nugget, idx, rng) -> tuple[Kernel, float]:
-        X, r, zv = self.X_train_[idx], self.y_resid_[idx], self.z_var_[idx]
-        bounds = self._bounds(kernel)
-
-        def objective(theta):
-            try:
-                lml, grad = self._lml(theta, kernel, X, r, zv, eval_gradient=True, strict=True)
-            except NumericalError:
-                return np.inf, np.zeros_like(theta)
-            return -lml, -grad
-
-        starts = [np.clip(self._theta(kernel, nugget), bounds[:, 0], bounds[:, 1])]
-        starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(int(self.n_restarts))]
-        best = None
-        for theta0 in starts:
-            # Single-threaded BLAS for the many small factorizations: on this 2-core machine
-            # OpenBLAS's threads made a Cholesky of n = 1000 take 494 ms instead of 23 ms
-            # whenever the other core was busy (docs/terrain.md, Performance).
-            with threadpool_limits(1):
-                res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds)
-            self.optimizer_runs_.append(
-                {
-                    "start": theta0.tolist(),
-                    "theta": res.x.tolist(),
-                    "lml": float(-res.fun),
-                    "success": bool(res.success),
-                    "nit": int(res.nit),
-                    "nfev": int(res.nfev),
-                }
-            )
-            if np.isfinite(res.fun) and (best is None or res.fun < best.fun):
-                best = res
-        if best is None:
-            raise NumericalError(
-                "every optimizer start failed to factor the kernel matrix. Fix: set a larger "
-                "nugget or narrower lengthscale_bounds."
-            )
-        return self._unpack(best.x, kernel)
-
-    # -- Eq 9 -------------------------------------------------------------------------------
-    def _lml(self, theta, kernel, X, r, z_var, eval_gradient, strict=False):
-        k, nugget = self._unpack(theta, kernel)
-        return gaussian_lml(
-            k, X, r, z_var + nugget, eval_gradient, strict, nugget if self.fit_nugget else None
+    def _set_coefficients(self, samples, L=None, idx=None) -> np.ndarray:
+        """GLS coefficients of a linear mean at the fitted kernel (R&W Eq 2.42); updates the
+        mean and the residuals, returns the residuals (n,)."""
+        H = np.asarray(self.mean_.basis(samples.xy), dtype=float)
+        idx = slice(None) if idx is None else idx
+        nv = self.z_var_[idx] + self.nugget_
+        beta, cov = gls_coefficients(
+            self.kernel_, self.X_train_[idx], samples.z[idx], nv, H[idx], L
         )
+        self.mean_ = self.mean_.with_coefficients(beta, cov)
+        self.coef_cov_ = cov
+        self.H_ = H
+        if L is not None:
+            self.W_ = solve_triangular(L, H, lower=True, check_finite=False)
+        self.y_resid_ = samples.z - H @ beta
+        return self.y_resid_
 
-    def log_marginal_likelihood(
-        self, theta: np.ndarray | None = None, eval_gradient: bool = False
-    ) -> float | tuple[float, np.ndarray]:
-        """Log marginal likelihood (Eq 9) on all fitted samples.
-
-        Parameters
-        ----------
-        theta : ndarray, optional
-            ``log([variance, lengthscale..., nugget])`` (nugget only when it is fitted);
-            default: the fitted values.
-        eval_gradient : bool
-            Also return the analytic gradient with respect to ``theta`` (R&W Eq 5.9).
-        """
-        self._check_fitted()
-        if theta is None:
-            theta = self._theta(self.kernel_, self.nugget_)
-            if not eval_gradient:
-                return self.log_marginal_likelihood_value_
-        return self._lml(
-            theta, self.kernel_, self.X_train_, self.y_resid_, self.z_var_, eval_gradient
-        )
+    def _basis_pair(self, xy: np.ndarray, cov: np.ndarray):
+        """(H at the samples, H at ``xy``, coefficient covariance) for the tiled GP."""
+        if getattr(self, "H_", None) is None:
+            self.H_ = np.asarray(self.mean_.basis(self.samples_.xy), dtype=float)
+        return self.H_, np.asarray(self.mean_.basis(xy), dtype=float), cov
 
     # -- predict ----------------------------------------------------------------------------
     def _check_fitted(self) -> None:
@@ -405,7 +390,17 @@ class TerrainGP:
         if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
             raise bad_input("xy", xy.shape, "finite query points of shape (m, 2)", "")
         m = xy.shape[0]
-        if self.method_ == "tiled":
+        cov = getattr(self, "coef_cov_", None)
+        # The exact variance costs n^2 per query (R&W Alg. 2.1 line 5): "auto" tiles big grids.
+        # Not with a long-scale part: tiles revert to the mean in gaps (docs/terrain.md).
+        big = return_std and self.samples_.n**2 * m > EXACT_PREDICT_FLOPS
+        tileable = long_scale_part(self.kernel_, self.tiles_.halo) is None
+        self.predict_route_ = (
+            "tiled"
+            if self.method_ == "tiled" or (big and tileable and self.method == "auto")
+            else "exact"
+        )
+        if self.predict_route_ == "tiled":
             resid_mean, std, stats = predict_tiled(
                 xy - self.X_offset_,
                 self.X_train_,
@@ -415,6 +410,7 @@ class TerrainGP:
                 self.tiles_,
                 return_std,
                 amplitude_prior_sd=self.amplitude_prior_sd if self.local_amplitude else None,
+                basis=None if cov is None or not return_std else self._basis_pair(xy, cov),
             )
             self.tile_stats_ = stats
             mean = np.asarray(self.mean_(xy), dtype=float) + resid_mean
@@ -436,6 +432,8 @@ class TerrainGP:
                     self.L_, Ks.T, lower=True, check_finite=False, overwrite_b=True
                 )
                 var = self.kernel_.diag(Xq) - np.einsum("ij,ij->j", V, V)
+                if cov is not None:  # R&W Eq 2.42: the mean coefficients' uncertainty
+                    var += variance_term(self.mean_.basis(xy[sl]), cov, self.W_, V)
                 if include_nugget:
                     var += self.nugget_
                 std[sl] = np.sqrt(np.maximum(var, 0.0))
@@ -494,6 +492,9 @@ class TerrainGP:
             "n_merged_duplicates": int(self.samples_.n_merged),
             "log_marginal_likelihood": self.log_marginal_likelihood_value_,
             "jitter": self.jitter_,
+            "kernel_selection": json.dumps(json_rows(self.kernel_scores_)),
+            "mean_coefficients": json.dumps(mean_coefficients(self.mean_)),
+            "degenerate_fit": int(self.degenerate_),
             "seed": int(self.seed),
             "software": f"glacimap {software_version()}",
         }

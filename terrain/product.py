@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from .grid import Grid
 
 __all__ = ["software_version", "terrain_dataset"]
@@ -40,3 +42,21 @@ def terrain_dataset(grid: Grid, elevation: Any, elevation_std: Any, attrs: dict[
         coords=grid.coords(),
         attrs={**grid.attrs(), **attrs},
     )
+
+
+def json_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Kernel-search scores with plain floats (netCDF attrs are flat strings)."""
+    out = []
+    for r in rows:
+        out.append({k: (float(v) if isinstance(v, np.floating) else v) for k, v in r.items()})
+    return out
+
+
+def mean_coefficients(mean: Any) -> dict[str, Any]:
+    """A linear mean's fitted coefficients with 1-sigma, e.g. {"offset_m": [1.2, 0.05]}."""
+    coef = getattr(mean, "coef_", None)
+    if coef is None:
+        return {}
+    sd = np.sqrt(np.diag(np.atleast_2d(getattr(mean, "coef_cov_", np.zeros((1, 1))))))
+    names = getattr(mean, "coef_names", [f"b{i}" for i in range(len(coef))])
+    return {n: [float(c), float(s)] for n, c, s in zip(names, np.ravel(coef), sd, strict=False)}

@@ -197,6 +197,7 @@ def predict_tiled(
     return_std: bool = True,
     workers: int | None = None,
     amplitude_prior_sd: float | None = None,
+    basis: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, dict[str, float]]:
     """Blended local-GP posterior of the residual at ``xq``.
 
@@ -218,6 +219,10 @@ def predict_tiled(
         Also compute the posterior 1-sigma.
     workers : int, optional
         Threads over tiles (default: the number of CPUs).
+    basis : (H, Hq, cov), optional
+        A linear mean's basis at the samples (n, p) and at the queries (m, p) and its
+        coefficients' covariance (p, p): each tile adds ``R^T cov R``,
+        ``R = h* - H_t K_t^-1 k*`` (R&W Eq 2.42 on the tile's data).
     amplitude_prior_sd : float, optional
         Give each tile its own kernel amplitude (:func:`local_amplitude`, from the samples in
         its blending region, at most :data:`AMPLITUDE_POINTS` nearest its centre) with this
@@ -285,6 +290,9 @@ def predict_tiled(
                 d_idx = d_idx[np.argpartition(dist, spec.max_points)[: spec.max_points]]
         if len(d_idx) == 0:
             var0 = np.full(q_idx.size, prior_var)
+            if basis is not None:
+                hq = basis[1][q_idx]
+                var0 = var0 + np.einsum("qi,ij,qj->q", hq, basis[2], hq)
             return q_idx, w, np.zeros(q_idx.size), var0, 0, False, 0.0, None
         d_idx = np.sort(d_idx)  # a fixed order: results independent of bucket order
         Xd = X[d_idx]
@@ -311,6 +319,10 @@ def predict_tiled(
         if return_std:
             V = solve_triangular(L, Ks.T, lower=True, check_finite=False, overwrite_b=True)
             var = np.maximum(scale * prior_var - np.einsum("ij,ij->j", V, V), 0.0)  # lines 5-6
+            if basis is not None:  # R&W Eq 2.42: the mean coefficients' uncertainty
+                W = solve_triangular(L, basis[0][d_idx], lower=True, check_finite=False)
+                R = basis[1][q_idx] - (W.T @ V).T
+                var += np.einsum("qi,ij,qj->q", R, basis[2], R)
         return q_idx, w, mu, var, int(d_idx.size), capped, jitter, amp
 
     mean = np.zeros(xq.shape[0])

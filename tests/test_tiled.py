@@ -52,8 +52,10 @@ def test_far_from_data_is_prior_and_deterministic(setup):
     _, samples, _, tiled, kw = setup
     far = np.array([[5000.0, 5000.0], [-3000.0, 100.0]])
     m, s = tiled.predict(far, return_std=True)
-    np.testing.assert_allclose(m, samples.z.mean())  # constant mean = mean of the data
-    np.testing.assert_allclose(s, np.sqrt(1.5))  # prior variance of the kernel
+    # The constant mean is the GLS estimate (R&W Eq 2.42); far from data the 1-sigma is the
+    # kernel's prior variance plus that constant's variance (H K^-1 H^T)^-1.
+    np.testing.assert_allclose(m, tiled.mean_.coef_[0])
+    np.testing.assert_allclose(s, np.sqrt(1.5 + tiled.coef_cov_[0, 0]))
     q = np.random.default_rng(0).uniform(0, 150, (2000, 2))
     from terrain.tiled import predict_tiled
 

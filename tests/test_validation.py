@@ -161,14 +161,20 @@ def test_same_seed_same_result(draw):
 
 
 def test_mean_is_refitted_on_the_training_folds(draw):
-    """With hyperparameters fixed, a data-fitted mean ("constant") is fitted on the training
-    folds only: the held-out samples never inform it."""
+    """With hyperparameters fixed, a data-fitted mean ("constant", estimated by GLS) is
+    fitted on the training folds only: the held-out samples never inform it. Reference: the
+    GLS constant of the training samples alone, computed here independently (R&W Eq 2.42)."""
+    from terrain.gp_mean import gls_coefficients
+
     seen: list[float] = []
 
     class Spy(TerrainGP):
         def fit(self, samples):
             super().fit(samples)
-            seen.append((self.mean_.value_, float(samples.z.mean())))
+            H = np.ones((samples.n, 1))
+            nv = samples.z_var + self.nugget_
+            beta, _ = gls_coefficients(self.kernel_, samples.xy, samples.z, nv, H)
+            seen.append((float(self.mean_.coef_[0]), float(beta[0])))
             return self
 
     gp = Spy(SquaredExponential(VAR, ELL), mean="constant", optimize=False, method="exact")

@@ -1,0 +1,118 @@
+"""Hyperparameters of a given kernel by Eq 9: the log-parameter vector, L-BFGS-B restarts
+and the exact log marginal likelihood (a mixin of :class:`terrain.gp.TerrainGP`).
+
+A kernel *family* search (``kernel="auto"``) lives in :mod:`terrain.kernel_search`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize
+from threadpoolctl import threadpool_limits
+
+from .errors import NumericalError, bad_input
+from .kernels import Kernel, SquaredExponential
+from .likelihood import gaussian_lml
+
+__all__ = ["HyperparameterMixin"]
+
+
+class HyperparameterMixin:
+    """Eq 9 and its maximization for a :class:`~terrain.gp.TerrainGP` with a given kernel."""
+
+    # -- hyperparameter vector: log([kernel params..., nugget]) -----------------------------
+    def _theta(self, kernel: Kernel, nugget: float) -> np.ndarray:
+        theta = kernel.theta
+        return np.append(theta, np.log(max(nugget, 1e-300))) if self.fit_nugget else theta
+
+    def _unpack(self, theta: np.ndarray, kernel: Kernel) -> tuple[Kernel, float]:
+        theta = np.asarray(theta, dtype=float)
+        k = kernel.n_params
+        if theta.shape != (k + self.fit_nugget,):
+            raise bad_input(
+                "theta",
+                theta.shape,
+                f"shape ({k + self.fit_nugget},): log of "
+                f"{kernel.param_names + (['nugget'] if self.fit_nugget else [])}",
+                "",
+            )
+        nugget = float(np.exp(theta[k])) if self.fit_nugget else float(self.nugget)
+        return kernel.with_theta(theta[:k]), nugget
+
+    def _bounds(self, kernel: Kernel) -> np.ndarray:
+        b = kernel.bounds
+        return np.vstack([b, np.log(self.nugget_bounds)]) if self.fit_nugget else b
+
+    @staticmethod
+    def _default_kernel(X: np.ndarray, resid: np.ndarray) -> Kernel:
+        extent = float(np.ptp(X, axis=0).max()) or 1.0
+        variance = float(np.var(resid)) or 1.0
+        return SquaredExponential(variance=variance, lengthscale=max(extent / 10.0, 1.0))
+
+    def _optimize(self, kernel, nugget, idx, rng) -> tuple[Kernel, float]:
+        X, r, zv = self.X_train_[idx], self.y_resid_[idx], self.z_var_[idx]
+        bounds = self._bounds(kernel)
+
+        def objective(theta):
+            try:
+                lml, grad = self._lml(theta, kernel, X, r, zv, eval_gradient=True, strict=True)
+            except NumericalError:
+                return np.inf, np.zeros_like(theta)
+            return -lml, -grad
+
+        starts = [np.clip(self._theta(kernel, nugget), bounds[:, 0], bounds[:, 1])]
+        starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(int(self.n_restarts))]
+        best = None
+        for theta0 in starts:
+            # Single-threaded BLAS for the many small factorizations: on this 2-core machine
+            # OpenBLAS's threads made a Cholesky of n = 1000 take 494 ms instead of 23 ms
+            # whenever the other core was busy (docs/terrain.md, Performance).
+            with threadpool_limits(1):
+                res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds)
+            self.optimizer_runs_.append(
+                {
+                    "start": theta0.tolist(),
+                    "theta": res.x.tolist(),
+                    "lml": float(-res.fun),
+                    "success": bool(res.success),
+                    "nit": int(res.nit),
+                    "nfev": int(res.nfev),
+                }
+            )
+            if np.isfinite(res.fun) and (best is None or res.fun < best.fun):
+                best = res
+        if best is None:
+            raise NumericalError(
+                "every optimizer start failed to factor the kernel matrix. Fix: set a larger "
+                "nugget or narrower lengthscale_bounds."
+            )
+        return self._unpack(best.x, kernel)
+
+    # -- Eq 9 -------------------------------------------------------------------------------
+    def _lml(self, theta, kernel, X, r, z_var, eval_gradient, strict=False):
+        k, nugget = self._unpack(theta, kernel)
+        return gaussian_lml(
+            k, X, r, z_var + nugget, eval_gradient, strict, nugget if self.fit_nugget else None
+        )
+
+    def log_marginal_likelihood(
+        self, theta: np.ndarray | None = None, eval_gradient: bool = False
+    ) -> float | tuple[float, np.ndarray]:
+        """Log marginal likelihood (Eq 9) on all fitted samples.
+
+        Parameters
+        ----------
+        theta : ndarray, optional
+            ``log([variance, lengthscale..., nugget])`` (nugget only when it is fitted);
+            default: the fitted values.
+        eval_gradient : bool
+            Also return the analytic gradient with respect to ``theta`` (R&W Eq 5.9).
+        """
+        self._check_fitted()
+        if theta is None:
+            theta = self._theta(self.kernel_, self.nugget_)
+            if not eval_gradient:
+                return self.log_marginal_likelihood_value_
+        return self._lml(
+            theta, self.kernel_, self.X_train_, self.y_resid_, self.z_var_, eval_gradient
+        )

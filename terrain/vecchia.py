@@ -1,0 +1,245 @@
+"""Vecchia approximation of the GP log marginal likelihood (Eq 9) with its exact gradient.
+
+Eq 9 needs the Cholesky factor of an (n, n) matrix: O(n^3), 1 s for n = 2,000 on this
+machine, and an optimizer needs ~50 of them per kernel. Vecchia (1988) writes the joint
+density as a product of conditionals and conditions each sample only on its ``m`` nearest
+*earlier* samples in a fixed (seeded, random) order::
+
+    log p(y) ~= log p(y_1..y_m) + sum_{i > m} log p(y_i | y_N(i)),   |N(i)| = m
+
+Each conditional is a Gaussian with ``mu_i = c_i^T C_N^-1 y_N`` and
+``s_i^2 = c_ii - c_i^T C_N^-1 c_i`` (C_N: covariance of the neighbours, noise included; c_i:
+their covariance with sample i), so the whole likelihood costs O(n m^3) in batched small
+solves, and its gradient follows from ``d mu`` and ``d s^2`` (below) with no approximation
+beyond the conditioning sets. With random ordering the late samples condition on close
+neighbours (the short scale, the nugget) and the early ones on far ones (the long scale);
+Guinness (2018, Technometrics 60:415) and Katzfuss & Guinness (2021, Stat. Sci. 36:124)
+show m = 20-30 gives parameter estimates indistinguishable from exact ones. Ours are
+checked against the exact Eq 9 in ``tests/test_vecchia.py``.
+
+Conditioning sets are found block-wise: samples at positions [b, 2b) query a KD-tree of
+positions [0, b) for their m nearest (any set of earlier samples is a valid Vecchia set).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .errors import NumericalError
+from .likelihood import gaussian_lml
+
+__all__ = ["VecchiaPlan", "nearest_neighbour_predict", "vecchia_lml"]
+
+_LOG_2PI = np.log(2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class VecchiaPlan:
+    """Ordering and conditioning sets of a Vecchia likelihood.
+
+    Attributes
+    ----------
+    order : ndarray of shape (n,)
+        Sample index at each position of the ordering.
+    neighbours : ndarray of shape (n - m, m)
+        For positions m..n-1, the *sample indices* of their conditioning sets.
+    m : int
+        Conditioning-set size; positions 0..m-1 form one exact joint block.
+    """
+
+    order: np.ndarray
+    neighbours: np.ndarray
+    m: int
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @classmethod
+    def build(cls, X: np.ndarray, m: int, rng: np.random.Generator) -> VecchiaPlan:
+        """Random order (from ``rng``) and m nearest earlier neighbours, block-wise."""
+        n = X.shape[0]
+        m = int(min(m, max(n - 1, 1)))
+        order = rng.permutation(n)
+        Xo = X[order]
+        rows = []
+        b = m
+        while b < n:
+            hi = min(2 * b, n)
+            _, nn = cKDTree(Xo[:b]).query(Xo[b:hi], k=m)
+            rows.append(np.asarray(nn).reshape(hi - b, m))
+            b = hi
+        nbr = np.vstack(rows) if rows else np.empty((0, m), dtype=int)
+        return cls(order=order, neighbours=order[nbr], m=m, _cache={})
+
+    def pair_sq(self, X: np.ndarray, start: int, batch: int) -> tuple[np.ndarray, np.ndarray]:
+        """Squared coordinate differences (b, m+1, m+1, 2) and their sum over the axes
+        (b, m+1, m+1) of the conditioning sets at tail
+        positions [start, start + batch), each set ordered neighbours first, then the sample.
+        Cached per (X, batch): an optimizer evaluates the same sets many times."""
+        key = (id(X), X.shape, start, batch)
+        if key not in self._cache:
+            idx = self.order[self.m :][start : start + batch]
+            sets = np.concatenate([self.neighbours[start : start + batch], idx[:, None]], 1)
+            P = X[sets]
+            D = P[:, :, None, :] - P[:, None, :, :]
+            sq = D * D
+            self._cache[key] = (sq, sq.sum(-1))
+        return self._cache[key]
+
+
+def _pair_tensors(kernel, sq: np.ndarray):
+    """Covariance blocks of point sets and their log-parameter derivatives.
+
+    ``sq`` (b, k, k, d) holds the squared coordinate differences of each set's pairs per
+    axis (cached in the plan: they do not change with the hyperparameters). Returns C
+    (b, k, k) and a list of dC (b, k, k), one per kernel theta.
+    """
+    parts = getattr(kernel, "parts", (kernel,))
+    if isinstance(sq, tuple):  # (per-axis, summed) from the plan's cache
+        sq, total = sq
+    else:
+        total = sq.sum(-1)  # unscaled squared distances, shared by isotropic parts
+    C = None
+    grads = []
+    for p in parts:
+        ls = p.lengths
+        d2 = total / (ls[0] * ls[0]) if ls.size == 1 else (sq / (ls * ls)).sum(-1)
+        Kp = p.variance * p._rho(d2)
+        C = Kp if C is None else C + Kp
+        grads.append(Kp)  # d/dlog variance
+        g = p.variance * p._drho_dlog_ls(d2)
+        if ls.size == 1:
+            grads.append(g * d2)
+        else:
+            for axis in range(ls.size):
+                grads.append(g * sq[..., axis] / (ls[axis] * ls[axis]))
+    return C, grads
+
+
+def vecchia_lml(
+    kernel,
+    X: np.ndarray,
+    r: np.ndarray,
+    noise_var: np.ndarray,
+    plan: VecchiaPlan,
+    eval_gradient: bool = False,
+    nugget: float | None = None,
+    batch: int = 4096,
+) -> float | tuple[float, np.ndarray]:
+    """Vecchia log marginal likelihood of residuals ``r`` (Eq 9, approximated).
+
+    Parameters
+    ----------
+    kernel : Kernel or SumKernel
+        Covariance with the hyperparameters to evaluate.
+    X : ndarray of shape (n, 2)
+        Sample locations, m (centred coordinates are best).
+    r : ndarray of shape (n,)
+        Samples minus the prior mean, m.
+    noise_var : ndarray of shape (n,)
+        Per-sample noise variance including any nugget, m^2.
+    plan : VecchiaPlan
+        Ordering and conditioning sets for these ``X``.
+    eval_gradient : bool
+        Also return the gradient with respect to the kernel's log-parameters, then
+        d / d log(nugget) when ``nugget`` is given (the same layout as
+        :func:`terrain.likelihood.gaussian_lml`).
+    nugget : float, optional
+        The nugget inside ``noise_var``.
+    batch : int
+        Conditionals evaluated per batch (memory: batch x (m+1)^2 x n_params doubles).
+
+    Raises
+    ------
+    NumericalError
+        When a conditional variance is not positive (the optimizer treats it as -inf).
+    """
+    m = plan.m
+    head = plan.order[:m]
+    # The first m samples: one exact joint Gaussian (R&W Alg. 2.1 line 8 on m points).
+    out = gaussian_lml(kernel, X[head], r[head], noise_var[head], eval_gradient, True, nugget)
+    lml, grad = out if eval_gradient else (out, None)
+    tail = plan.order[m:]
+    for start in range(0, tail.size, batch):
+        idx = tail[start : start + batch]
+        nb = plan.neighbours[start : start + batch]
+        C, dCs = _pair_tensors(kernel, plan.pair_sq(X, start, batch))
+        nv = noise_var[np.concatenate([nb, idx[:, None]], axis=1)]
+        diag = np.arange(m + 1)
+        C[:, diag, diag] += nv
+        Cn, c, cii = C[:, :m, :m], C[:, :m, m], C[:, m, m]
+        yN, yi = r[nb], r[idx]
+        try:
+            sol = np.linalg.solve(Cn, np.stack([yN, c], axis=-1))  # (b, m, 2)
+        except np.linalg.LinAlgError as exc:
+            raise NumericalError("Vecchia neighbour covariance is singular") from exc
+        alpha, bvec = sol[..., 0], sol[..., 1]
+        mu = np.einsum("bj,bj->b", c, alpha)
+        s2 = cii - np.einsum("bj,bj->b", c, bvec)
+        if not np.all(s2 > 0):
+            raise NumericalError("a Vecchia conditional variance is not positive")
+        e = yi - mu
+        lml += float(np.sum(-0.5 * e * e / s2 - 0.5 * np.log(s2)) - 0.5 * idx.size * _LOG_2PI)
+        if not eval_gradient:
+            continue
+        # d mu = dc^T alpha - b^T dC_N alpha;  d s2 = dc_ii - 2 dc^T b + b^T dC_N b
+        w_mu, w_s2 = e / s2, 0.5 * (e * e / s2 - 1.0) / s2
+        extra = [] if nugget is None else [None]
+        for j, dC in enumerate(list(dCs) + extra):
+            if dC is None:  # nugget: dC = nugget * I on the diagonal, zero off it
+                dmu = -nugget * np.einsum("bj,bj->b", bvec, alpha)
+                ds2 = nugget * (1.0 + np.einsum("bj,bj->b", bvec, bvec))
+            else:
+                dCn, dc, dcii = dC[:, :m, :m], dC[:, :m, m], dC[:, m, m]
+                dmu = np.einsum("bj,bj->b", dc, alpha) - np.einsum("bj,bjk,bk->b", bvec, dCn, alpha)
+                ds2 = (
+                    dcii
+                    - 2.0 * np.einsum("bj,bj->b", dc, bvec)
+                    + np.einsum("bj,bjk,bk->b", bvec, dCn, bvec)
+                )
+            grad[j] += float(np.sum(w_mu * dmu + w_s2 * ds2))
+    return (lml, np.asarray(grad)) if eval_gradient else lml
+
+
+def nearest_neighbour_predict(
+    kernel,
+    X: np.ndarray,
+    r: np.ndarray,
+    noise_var: np.ndarray,
+    Xq: np.ndarray,
+    m: int = 20,
+    batch: int = 4096,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Posterior mean and variance of the latent surface at ``Xq`` from each query's ``m``
+    nearest samples (a nearest-neighbour GP: the Vecchia conditional of a new point).
+
+    Parameters
+    ----------
+    X, r, noise_var : ndarrays of shape (n, 2), (n,), (n,)
+        Samples, residuals (m) and their noise variance including the nugget (m^2).
+    Xq : ndarray of shape (q, 2)
+        Query points, same frame as ``X``.
+
+    Returns
+    -------
+    mean, var : ndarrays of shape (q,)
+        R&W Alg. 2.1 lines 4-6 on each query's neighbourhood (var without noise), m, m^2.
+    """
+    m = int(min(m, X.shape[0]))
+    _, nb = cKDTree(X).query(Xq, k=m)
+    nb = np.asarray(nb).reshape(len(Xq), m)
+    mean = np.empty(len(Xq))
+    var = np.empty(len(Xq))
+    prior = float(kernel.diag(Xq[:1])[0])
+    for s in range(0, len(Xq), batch):
+        sl = slice(s, s + batch)
+        P = np.concatenate([X[nb[sl]], Xq[sl, None, :]], axis=1)  # (b, m + 1, 2)
+        D = P[:, :, None, :] - P[:, None, :, :]
+        C, _ = _pair_tensors(kernel, D * D)
+        Cn, c = C[:, :m, :m], C[:, :m, m]
+        Cn[:, np.arange(m), np.arange(m)] += noise_var[nb[sl]]
+        sol = np.linalg.solve(Cn, np.stack([r[nb[sl]], c], axis=-1))
+        mean[sl] = np.einsum("bj,bj->b", c, sol[..., 0])
+        var[sl] = np.maximum(prior - np.einsum("bj,bj->b", c, sol[..., 1]), 0.0)
+    return mean, var

@@ -1,0 +1,130 @@
+"""Vecchia likelihood (terrain.vecchia) and the kernel chosen by evidence (terrain.kernel_search).
+
+References: the exact Eq 9 and its analytic gradient (terrain.likelihood.gaussian_lml, itself
+checked against scikit-learn in test_gp.py); central finite differences; GP draws whose
+kernel family is known (terrain.se_random_field and a Cholesky draw of a Matérn 3/2).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from terrain import (
+    DegenerateFitWarning,
+    ElevationSamples,
+    InputError,
+    Matern,
+    SquaredExponential,
+    TerrainGP,
+)
+from terrain.kernel_search import FAMILY
+from terrain.likelihood import gaussian_lml
+from terrain.vecchia import VecchiaPlan, nearest_neighbour_predict, vecchia_lml
+
+
+@pytest.fixture(scope="module")
+def data():
+    rng = np.random.default_rng(3)
+    X = rng.uniform(0.0, 200.0, (250, 2))
+    r = np.sin(X[:, 0] / 25.0) + 0.5 * np.cos(X[:, 1] / 40.0) + rng.normal(0, 0.1, 250)
+    return X, r, np.full(250, 0.01)
+
+
+KERNEL = Matern(1.0, 15.0, nu=2.5) + SquaredExponential(2.0, 80.0)
+
+
+def test_full_conditioning_sets_equal_the_exact_likelihood(data):
+    """With m = n - 1 every conditional is exact: Vecchia = Eq 9 and its gradient."""
+    X, r, zv = data
+    nug = 0.02
+    exact, g_exact = gaussian_lml(KERNEL, X, r, zv + nug, True, True, nug)
+    plan = VecchiaPlan.build(X, X.shape[0] - 1, np.random.default_rng(0))
+    approx, g = vecchia_lml(KERNEL, X, r, zv + nug, plan, True, nug)
+    assert approx == pytest.approx(exact, rel=1e-10)
+    np.testing.assert_allclose(g, g_exact, rtol=1e-7, atol=1e-8)
+
+
+def test_gradient_matches_finite_differences(data):
+    X, r, zv = data
+    plan = VecchiaPlan.build(X, 10, np.random.default_rng(1))
+    theta = np.append(KERNEL.theta, np.log(0.02))
+
+    def f(t):
+        k = KERNEL.with_theta(t[:-1])
+        return vecchia_lml(k, X, r, zv + np.exp(t[-1]), plan, False)
+
+    _, g = vecchia_lml(KERNEL, X, r, zv + 0.02, plan, True, 0.02)
+    h = 1e-6
+    fd = [(f(theta + h * e) - f(theta - h * e)) / (2 * h) for e in np.eye(theta.size)]
+    np.testing.assert_allclose(g, fd, rtol=1e-5, atol=1e-5)
+
+
+def test_nearest_neighbour_prediction_with_all_samples_is_exact(data):
+    """With m = n the neighbourhood is every sample: R&W Alg. 2.1 exactly."""
+    X, r, zv = data
+    gp = TerrainGP(KERNEL, mean=0.0, nugget=0.0, nugget_bounds="fixed", optimize=False)
+    gp.fit(ElevationSamples(X, r, zv))
+    q = np.random.default_rng(2).uniform(0, 200, (50, 2))
+    m_exact, s_exact = gp.predict(q, return_std=True)
+    off = gp.X_offset_
+    m, v = nearest_neighbour_predict(gp.kernel_, X - off, r, zv, q - off, m=X.shape[0])
+    np.testing.assert_allclose(m, m_exact, atol=1e-8)
+    np.testing.assert_allclose(np.sqrt(v), s_exact, atol=1e-8)
+
+
+def _matern_draw(n=900, seed=0):
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(0.0, 300.0, (n, 2))
+    K = Matern(1.0, 25.0, nu=1.5)(X) + 1e-8 * np.eye(n)
+    f = np.linalg.cholesky(K) @ rng.normal(size=n)
+    z = 100.0 + f + rng.normal(0.0, 0.1, n)
+    return ElevationSamples(X, z, np.full(n, 0.01), crs="EPSG:32608")
+
+
+def test_auto_kernel_scores_the_family_and_finds_a_rough_draw():
+    """A Matérn 3/2 draw: the search scores every family member, picks a Matérn 3/2 form
+    (not the over-smooth SE) and recovers the length scale within 30 %."""
+    samples = _matern_draw()
+    gp = TerrainGP(seed=0).fit(samples)
+    names = {row["name"] for row in gp.kernel_scores_}
+    assert names == set(FAMILY)
+    assert sum(row["selected"] for row in gp.kernel_scores_) == 1
+    assert gp.kernel_name_.startswith("matern32"), gp.kernel_scores_
+    parts = getattr(gp.kernel_, "parts", (gp.kernel_,))
+    main = max(parts, key=lambda p: p.variance)
+    assert float(main.lengths[0]) == pytest.approx(25.0, rel=0.3)
+    se = next(r for r in gp.kernel_scores_ if r["name"] == "se")
+    assert se["delta_bic"] > 10.0
+    prov = gp.provenance()
+    assert "kernel_selection" in prov and "matern32" in prov["kernel_selection"]
+
+
+def test_family_subset_and_bad_names():
+    samples = _matern_draw(300)
+    gp = TerrainGP(kernel=["se", "matern52"], seed=0).fit(samples)
+    assert {r["name"] for r in gp.kernel_scores_} == {"se", "matern52"}
+    with pytest.raises(InputError, match="kernel"):
+        TerrainGP(kernel="matern7").fit(samples)
+    with pytest.raises(InputError, match="optimize"):
+        TerrainGP(kernel="se", optimize=False).fit(samples)
+
+
+def test_same_seed_same_fit():
+    samples = _matern_draw(400)
+    a = TerrainGP(seed=5).fit(samples)
+    b = TerrainGP(seed=5).fit(samples)
+    assert repr(a.kernel_) == repr(b.kernel_) and a.nugget_ == b.nugget_
+
+
+def test_degenerate_length_scale_warns():
+    """A length scale far below the sample spacing imitates white noise: warned in words."""
+    samples = _matern_draw(300)
+    gp = TerrainGP(SquaredExponential(1.0, 0.5), optimize=False)
+    with pytest.warns(DegenerateFitWarning, match="below the median sample spacing"):
+        gp.fit(samples)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DegenerateFitWarning)
+        TerrainGP(SquaredExponential(1.0, 25.0), optimize=False).fit(samples)
