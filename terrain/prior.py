@@ -36,6 +36,7 @@ from .grid import Grid, north_up
 from .linear_mean import (
     OffsetScaleMean,
     check_coefficients,
+    check_xy,
     check_z,
     format_coefficients,
     parse_offset,
@@ -45,14 +46,6 @@ __all__ = ["ConstantMean", "TriangulatedMean", "as_mean_function", "coarse_dem"]
 
 MeanFunction = Callable[[np.ndarray], np.ndarray]
 _CHUNK = 65536  # query points per chunk when projecting onto the hull edges
-
-
-def _check_xy(xy: Any) -> np.ndarray:
-    xy = np.asarray(xy, dtype=float)
-    if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
-        shape = getattr(xy, "shape", None)
-        raise bad_input("xy", shape, "finite easting/northing, shape (n, 2)", "stack x and y")
-    return xy
 
 
 def coarse_dem(
@@ -168,7 +161,7 @@ class ConstantMean:
                 "None for a mean with a linear coefficient (n_coef > 0)",
                 "check mean.n_coef first; a fixed mean is evaluated as mean(xy)",
             )
-        return np.ones((len(_check_xy(xy)), 1))
+        return np.ones((len(check_xy(xy)), 1))
 
     def with_coefficients(self, beta: Any, cov: Any) -> ConstantMean:
         """A copy with ``value_ = beta[0]`` (m) and ``coef_cov_ = cov`` (1, 1), m^2."""
@@ -191,7 +184,7 @@ class ConstantMean:
                 "ConstantMean() (mean of the observations) was called before fit. Fix: call "
                 "mean.fit(xy, z) first, or give a value: ConstantMean(100.0)."
             )
-        return np.full(len(_check_xy(xy)), self.value_)
+        return np.full(len(check_xy(xy)), self.value_)
 
     def __repr__(self) -> str:
         text = f"ConstantMean(value={self.value!r}, value_={self.value_!r}"
@@ -307,7 +300,7 @@ class TriangulatedMean(OffsetScaleMean):
 
     def dem(self, xy: np.ndarray) -> np.ndarray:
         """The mesh itself (m) at ``xy`` (n, 2) -> (n,), before any offset; never NaN."""
-        xy = _check_xy(xy)
+        xy = check_xy(xy)
         if self._interp is None:  # one row or column of cells: interpolate along it
             axis = 0 if self.grid.nx > 1 else 1
             order = np.argsort(self.points[:, axis])
@@ -354,7 +347,7 @@ class _CheckedMean:
         return _CheckedMean(self.fn.fit(xy, z)) if hasattr(self.fn, "fit") else self
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
-        xy = _check_xy(xy)
+        xy = check_xy(xy)
         fix = "make the mean function return one finite elevation (m) per point, shape (n,)"
         try:
             out = np.asarray(self.fn(xy), dtype=float)
