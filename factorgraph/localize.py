@@ -21,6 +21,7 @@ import numpy as np
 
 from terrain.errors import bad_input
 
+from .control import ControlPoints, add_control_factors, control_report, plan_control
 from .factors import biased_gps_factor, drift_odometry_factor, gauss_markov_factor, gm_transition
 from .log import MeasurementLog
 from .rebuild import rebuild_isam
@@ -219,6 +220,7 @@ def localize(
     log: MeasurementLog,
     params: LocalizeParams | None = None,
     progress: Callable[[int, int], None] | None = None,
+    control: ControlPoints | None = None,
 ) -> LocalizationResult:
     """Fuse the log in iSAM2 and return poses, landmarks and their final marginals.
 
@@ -230,6 +232,10 @@ def localize(
         Estimator settings; noise levels come from ``log.sensors``.
     progress : callable, optional
         Called as ``progress(k + 1, K)`` after each keyframe (for a progress bar).
+    control : ControlPoints, optional
+        Ground control (any CRS): stops named in the log's ``control_id`` and marked targets
+        enter the graph after the online pass (:mod:`factorgraph.control`); the result's
+        ``control`` states which points were used and their residuals.
 
     Returns
     -------
@@ -245,6 +251,7 @@ def localize(
     params = params or LocalizeParams()
     if not isinstance(log, MeasurementLog):
         raise bad_input("log", type(log).__name__, "a MeasurementLog", "use read_log()")
+    ctrl_plan = plan_control(log, control) if control is not None else None  # fail fast
     X, B, L = _keys()
     Dk = gtsam.symbol_shorthand.D
     drift_model = params.odometry_drift
@@ -404,6 +411,8 @@ def localize(
             progress(k + 1, log.n_keyframes)
     for why in tracks.last_try.values():
         tracks.dropped[why] += 1
+    if ctrl_plan is not None:
+        add_control_factors(ctrl_plan, isam, history, tracks.active)
     estimate = isam.calculateEstimate()
     graph = history
     refine_report = None
@@ -416,7 +425,7 @@ def localize(
         graph, estimate, log.n_keyframes, sorted(tracks.active), bias_model, drift_model
     )
     marginal_s = time.perf_counter() - t0
-    return LocalizationResult.build(
+    result = LocalizationResult.build(
         log=log,
         params=params,
         estimate=estimate,
@@ -429,3 +438,6 @@ def localize(
         marginal_s=marginal_s,
         refine=refine_report.as_dict() if refine_report is not None else {},
     )
+    if ctrl_plan is not None:
+        result.control = control_report(ctrl_plan, result)
+    return result

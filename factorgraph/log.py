@@ -14,7 +14,8 @@ File layout (a folder; every table as ``NAME.csv`` or ``NAME.parquet``)
     ``k, t_s`` (strictly increasing time, s); optional truth ``true_x, true_y, true_z`` (m) and
     ``true_roll, true_pitch, true_yaw`` (rad, ZYX body-to-world); optional ``up_x, up_y, up_z``:
     the measured gravity "up" direction in the body frame (unit vector; an accelerometer or
-    inclinometer, ``sensors.tilt``).
+    inclinometer, ``sensors.tilt``); optional ``control_id``: the ground-control point the rover
+    stands on at that keyframe (empty for none; :mod:`factorgraph.control`).
 ``odometry``
     ``k`` (from keyframe k to k+1), ``rx, ry, rz`` (rotation vector, rad) and ``tx, ty, tz`` (m):
     the measured pose of keyframe k+1 in the body frame of keyframe k.
@@ -96,6 +97,8 @@ class MeasurementLog:
         ``landmark_id (L,)``, ``landmark_xyz (L,3)``.
     seed : int or None
         Seed that generated a simulated log.
+    control_id : ndarray of shape (K,), str, or None
+        Ground-control point the rover stands on at each keyframe ("" for none).
     """
 
     t: np.ndarray
@@ -111,6 +114,7 @@ class MeasurementLog:
     crs: str = "EPSG:32608"
     truth: dict[str, np.ndarray] = field(default_factory=dict)
     seed: int | None = None
+    control_id: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.t = _arr("keyframes.t_s", self.t, (None,))
@@ -152,6 +156,8 @@ class MeasurementLog:
         self.origin = _arr("meta.origin", self.origin, (2,))
         self.crs = as_crs(self.crs).to_string()
         self.truth = {k: np.asarray(v) for k, v in self.truth.items()}
+        if self.control_id is not None:
+            self.control_id = _arr("keyframes.control_id", self.control_id, (K,), str)
 
     @property
     def n_keyframes(self) -> int:
@@ -186,6 +192,8 @@ class MeasurementLog:
             )
         if self.tilt_up is not None:
             kf.update({f"up_{a}": self.tilt_up[:, i] for i, a in enumerate("xyz")})
+        if self.control_id is not None:
+            kf["control_id"] = self.control_id
         od = {"k": np.arange(K - 1)}
         od.update(
             {n: self.odometry[:, i] for i, n in enumerate(("rx", "ry", "rz", "tx", "ty", "tz"))}
@@ -296,6 +304,9 @@ def read_log(folder: str | Path) -> MeasurementLog:
         truth["landmark_xyz"] = lm[["true_x", "true_y", "true_z"]].to_numpy(float)
     up_cols = ["up_x", "up_y", "up_z"]
     tilt_up = kf[up_cols].to_numpy(float) if set(up_cols) <= set(kf.columns) else None
+    control_id = None
+    if "control_id" in kf.columns:  # ids as written: "7" stays "7", an empty cell is ""
+        control_id = kf["control_id"].map(_id_text).to_numpy(str)
     return MeasurementLog(
         t=kf["t_s"].to_numpy(float),
         tilt_up=tilt_up,
@@ -310,4 +321,12 @@ def read_log(folder: str | Path) -> MeasurementLog:
         crs=meta.get("crs", "EPSG:32608"),
         truth=truth,
         seed=meta.get("seed"),
+        control_id=control_id,
     )
+
+
+def _id_text(v: Any) -> str:
+    """A control id cell as text (pandas reads "7" as 7.0 and an empty cell as NaN)."""
+    if isinstance(v, float):
+        return "" if v != v else (str(int(v)) if v.is_integer() else repr(v))
+    return str(v).strip()

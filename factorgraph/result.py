@@ -72,6 +72,7 @@ class LocalizationResult:
     bandwidth: int = 0
     n_rebuilds: int = 0  # iSAM2 rebuilds after a failed update (new landmarks dropped)
     refine: dict = field(default_factory=dict)  # factorgraph.refine.RefineReport.as_dict()
+    control: dict = field(default_factory=dict)  # factorgraph.control.control_report(); {} if none
     graph: Any = field(default=None, repr=False)
     estimate: Any = field(default=None, repr=False)
 

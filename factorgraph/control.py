@@ -1,0 +1,497 @@
+"""Ground control: surveyed points (x, y, z, 1-sigma per axis, any CRS) that tie the map to the
+ground, the check that keeps them apart from the checkpoints (ASPRS 2023), and the factors
+that carry them into the localization graph (design and measurements: docs/ground-control.md).
+
+Two ways in, both optional and both used when present:
+
+* **Stops** -- the rover stands on a control point at the keyframes whose ``control_id``
+  column (keyframes table of :mod:`factorgraph.log`) names it. Each such keyframe gets a
+  position prior ``t(X_k) = p_c`` (``gtsam.GPSFactor``: error ``t(X_k) - p_c``, no bias term)
+  with 1-sigma ``sqrt(m sigma_c^2 + sigma_centring^2)`` per axis, ``m`` the number of stop
+  keyframes of that point: ``m`` priors then carry the survey error ``sigma_c`` once (their
+  information adds to ``1 / sigma_c^2``), not ``m`` times. With the GPS bias states in the
+  graph a stop observes the bias there: ``z_gps - t(X_k) = b_k + v``.
+* **Targets** -- a marked target the camera tracks: a control point whose ``target_id`` is a
+  track id (``observations.landmark_id``) gets ``PriorFactorPoint3`` on that landmark, when
+  the track became a landmark. The matching rule is the id only: no nearest-landmark guess
+  (a survey-grade prior on a texture point a metre away is a slope-sized vertical error).
+
+Factors are added after the online pass, before the batch refinement (one ``ISAM2.update``),
+so the online (filter) estimate is that of the rover without control.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pyproj import CRS, Transformer
+
+from terrain.errors import bad_input
+
+__all__ = [
+    "ControlPlan",
+    "ControlPoints",
+    "add_control_factors",
+    "check_in_area",
+    "check_independent",
+    "control_report",
+    "plan_control",
+    "read_control",
+]
+
+#: Column aliases of a control file (lower-cased header -> canonical name).
+ALIASES: dict[str, tuple[str, ...]] = {
+    "id": ("id", "name", "point", "point_id", "gcp", "gcp_id", "label", "station"),
+    "x": ("x", "easting", "east", "e", "x_m", "lon", "longitude", "long"),
+    "y": ("y", "northing", "north", "n", "y_m", "lat", "latitude"),
+    "z": ("z", "elevation", "elev", "height", "h", "alt", "altitude", "z_m"),
+    "sigma_x": ("sigma_x", "std_x", "sx", "sigma_e", "x_std"),
+    "sigma_y": ("sigma_y", "std_y", "sy", "sigma_n", "y_std"),
+    "sigma_z": ("sigma_z", "std_z", "sz", "sigma_u", "z_std", "sigma_h_z"),
+    "sigma_h": ("sigma_h", "sigma_xy", "std_h", "sigma_horizontal"),
+    "sigma": ("sigma", "std", "sigma_m", "accuracy"),
+    "target_id": ("target_id", "target", "landmark_id", "marker_id"),
+    "crs": ("crs", "epsg", "srs"),
+}
+#: Free-text columns kept as notes (anything else unknown is an error with a did-you-mean).
+NOTE_COLUMNS = ("description", "note", "notes", "comment", "comments", "code", "remarks")
+_LOOKUP = {alias: name for name, aliases in ALIASES.items() for alias in aliases}
+
+
+@dataclass(frozen=True)
+class ControlPoints:
+    """Surveyed ground control points.
+
+    Attributes
+    ----------
+    ids : ndarray of shape (n,), str
+        Point names, unique.
+    xyz : ndarray of shape (n, 3)
+        Coordinates in ``crs`` (x, y: easting/northing, or lon/lat in degrees for a
+        geographic CRS) and elevation (m, same vertical datum as the GPS).
+    sigma : ndarray of shape (n, 3)
+        1-sigma of the survey per axis (m, east, north, up), > 0.
+    crs : str
+        CRS of ``xyz`` (anything pyproj understands; :meth:`to_crs` reprojects).
+    target_id : ndarray of shape (n,), int
+        Track id of the marked target at the point in the camera tracks; -1 for none.
+    centring_sigma_m : float
+        1-sigma of the rover's body origin about the mark when it stands on it (m, per axis).
+    source : str
+        File name or ``"arrays"``.
+    """
+
+    ids: np.ndarray
+    xyz: np.ndarray
+    sigma: np.ndarray
+    crs: str
+    target_id: np.ndarray | None = None
+    centring_sigma_m: float = 0.02
+    source: str = "arrays"
+    notes: dict[str, list[str]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        ids = np.asarray(self.ids).astype(str).reshape(-1)
+        n = ids.size
+        xyz = np.asarray(self.xyz, float).reshape(-1, 3) if n else np.zeros((0, 3))
+        sigma = np.broadcast_to(np.asarray(self.sigma, float), (n, 3)).copy()
+        if n == 0:
+            raise bad_input("control", self.source, "at least one control point", "")
+        if xyz.shape != (n, 3):
+            raise bad_input("control.xyz", xyz.shape, f"shape ({n}, 3)", "one row per id")
+        dup = sorted({i for i in ids if (ids == i).sum() > 1})
+        if dup:
+            raise bad_input("control.id", dup, "unique point names", "rename or merge them")
+        for name, a in (("x/y/z", xyz), ("sigma", sigma)):
+            bad = ~np.isfinite(a).all(1)
+            if name == "sigma":
+                bad |= ~(a > 0).all(1)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise bad_input(
+                    f"control point {ids[i]!r} {name}",
+                    a[i].tolist(),
+                    "finite values" + (" > 0 (m)" if name == "sigma" else ""),
+                    "repair the row or remove the point",
+                )
+        tid = np.full(n, -1, int) if self.target_id is None else np.asarray(self.target_id, int)
+        if tid.shape != (n,):
+            raise bad_input("control.target_id", tid.shape, f"shape ({n},)", "")
+        if not (math.isfinite(self.centring_sigma_m) and self.centring_sigma_m >= 0):
+            raise bad_input("centring_sigma_m", self.centring_sigma_m, "a value >= 0 (m)", "")
+        try:
+            crs = CRS.from_user_input(self.crs).to_string()
+        except Exception as exc:  # pyproj.CRSError
+            raise bad_input(
+                "control.crs", self.crs, "a CRS pyproj understands", 'e.g. "EPSG:4326"'
+            ) from exc
+        for name, v in (("ids", ids), ("xyz", xyz), ("sigma", sigma), ("target_id", tid)):
+            object.__setattr__(self, name, v)
+        object.__setattr__(self, "crs", crs)
+
+    @property
+    def n(self) -> int:
+        return int(self.ids.size)
+
+    def to_crs(self, crs: Any) -> ControlPoints:
+        """The same points in ``crs`` (x, y by an exact PROJ transform; z and sigma kept)."""
+        dst = CRS.from_user_input(crs)
+        if dst.equals(CRS.from_user_input(self.crs), ignore_axis_order=True):
+            return self
+        tr = Transformer.from_crs(self.crs, dst, always_xy=True)
+        x, y = tr.transform(self.xyz[:, 0], self.xyz[:, 1], errcheck=False)
+        xy = np.column_stack([x, y])
+        if not np.isfinite(xy).all():
+            i = int(np.argmax(~np.isfinite(xy).all(1)))
+            raise bad_input(
+                f"control point {self.ids[i]!r}",
+                self.xyz[i, :2].tolist(),
+                f"coordinates that project from {self.crs} to {dst.to_string()}",
+                "check the CRS of the control file (lon/lat order, zone)",
+            )
+        return replace(self, xyz=np.column_stack([xy, self.xyz[:, 2]]), crs=dst.to_string())
+
+    def subset(self, keep: np.ndarray) -> ControlPoints:
+        """Rows ``keep`` (boolean mask or indices)."""
+        return replace(
+            self, ids=self.ids[keep], xyz=self.xyz[keep], sigma=self.sigma[keep],
+            target_id=self.target_id[keep],
+        )  # fmt: skip
+
+    def table(self) -> dict[str, np.ndarray]:
+        """Columns ``id, x, y, z, sigma_x, sigma_y, sigma_z, target_id`` (what
+        :func:`read_control` reads back, with ``crs``)."""
+        out: dict[str, Any] = {"id": self.ids}
+        out.update({a: self.xyz[:, i] for i, a in enumerate("xyz")})
+        out.update({f"sigma_{a}": self.sigma[:, i] for i, a in enumerate("xyz")})
+        out["target_id"] = self.target_id
+        return out
+
+    def write_csv(self, path: str | Path) -> Path:
+        """Write :meth:`table` and a ``crs`` column to ``path`` atomically."""
+        from terrain.atomic import atomic_path
+
+        cols = self.table()
+        names = [*cols, "crs"]
+        with atomic_path(Path(path)) as tmp, open(tmp, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(names)
+            for i in range(self.n):
+                w.writerow([_cell(cols[c][i]) for c in cols] + [self.crs])
+        return Path(path)
+
+
+def _cell(v: Any) -> str:
+    return repr(float(v)) if isinstance(v, float | np.floating) else str(v)
+
+
+def _canonical(header: list[str], path: Path) -> dict[str, int]:
+    """Header -> {canonical column: index}; unknown columns raise with a did-you-mean."""
+    cols: dict[str, int] = {}
+    for i, raw in enumerate(header):
+        h = raw.strip().lower()
+        name = _LOOKUP.get(h)
+        if name is None and h not in NOTE_COLUMNS:
+            near = difflib.get_close_matches(h, [*_LOOKUP, *NOTE_COLUMNS], n=1)
+            hint = f"did you mean {near[0]!r}? " if near else ""
+            raise bad_input(
+                f"{path.name} column {raw!r}",
+                header,
+                "known control columns (id, x, y, z, sigma_x, sigma_y, sigma_z, ... or aliases)",
+                f"{hint}rename it; aliases are listed in factorgraph.control.ALIASES",
+            )
+        if name is not None:
+            if name in cols:
+                raise bad_input(f"{path.name} column {raw!r}", header, f"one {name!r} column", "")
+            cols[name] = i
+    return cols
+
+
+def read_control(
+    path: str | Path,
+    crs: Any = None,
+    sigma_m: float | tuple[float, float, float] | None = None,
+    centring_sigma_m: float = 0.02,
+) -> ControlPoints:
+    """Read a control-point CSV.
+
+    Parameters
+    ----------
+    path : path
+        CSV with a header: ``id, x, y, z`` and the 1-sigma columns ``sigma_x, sigma_y,
+        sigma_z`` (or ``sigma_h`` for both horizontal axes, or one ``sigma`` for all);
+        aliases such as ``name, easting, northing, elevation, lat, lon`` (:data:`ALIASES`);
+        optional ``target_id`` (track id of a marked target) and ``crs``; free-text
+        ``description``/``notes``/``code`` columns are kept.
+    crs : optional
+        CRS of the file when it has no ``crs`` column (any pyproj input, e.g. "EPSG:4326":
+        then x is longitude, y latitude, degrees).
+    sigma_m : float or 3 floats, optional
+        1-sigma (m) for points whose file gives none. Without it, a missing sigma is an error.
+    centring_sigma_m : float
+        See :class:`ControlPoints`.
+
+    Returns
+    -------
+    ControlPoints
+        In the file's CRS; :meth:`ControlPoints.to_crs` reprojects to the map's.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            rows = [r for r in csv.reader(fh) if any(c.strip() for c in r)]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise bad_input("control file", str(path), "a readable CSV", str(exc)) from exc
+    if len(rows) < 2:
+        raise bad_input("control file", str(path), "a header and >= 1 point", "add points")
+    cols = _canonical(rows[0], path)
+    missing = [c for c in ("id", "x", "y", "z") if c not in cols]
+    if missing:
+        raise bad_input(
+            f"{path.name} header", rows[0], f"columns {missing} too", "see read_control's doc"
+        )
+    body = rows[1:]
+    short = [i + 2 for i, r in enumerate(body) if len(r) != len(rows[0])]
+    if short:
+        raise bad_input(f"{path.name} lines", short[:10], f"{len(rows[0])} cells each", "")
+
+    def col(name: str) -> np.ndarray | None:
+        if name not in cols:
+            return None
+        j, out = cols[name], []
+        for i, r in enumerate(body):
+            cell = r[j].strip()
+            try:
+                out.append(float(cell) if cell else math.nan)
+            except ValueError as exc:
+                raise bad_input(f"{path.name} line {i + 2} {name}", cell, "a number", "") from exc
+        return np.array(out)
+
+    ids = np.array([r[cols["id"]].strip() for r in body])
+    xyz = np.column_stack([col("x"), col("y"), col("z")])
+    sigma = _sigmas(col, len(body), sigma_m, path)
+    tid = col("target_id")
+    tid = np.full(len(body), -1, int) if tid is None else np.nan_to_num(tid, nan=-1).astype(int)
+    file_crs = {r[cols["crs"]].strip() for r in body} - {""} if "crs" in cols else set()
+    if len(file_crs) > 1:
+        raise bad_input(f"{path.name} crs", sorted(file_crs), "one CRS per file", "reproject")
+    if not file_crs and crs is None:
+        raise bad_input("control crs", path.name, "a crs column or crs=...", 'e.g. "EPSG:4326"')
+    use = crs if crs is not None else file_crs.pop()
+    if use.isdigit() if isinstance(use, str) else False:
+        use = f"EPSG:{use}"
+    notes = {h.strip().lower(): [r[i] for r in body] for i, h in enumerate(rows[0])}
+    notes = {k: v for k, v in notes.items() if k in NOTE_COLUMNS}
+    return ControlPoints(ids, xyz, sigma, use, tid, centring_sigma_m, source=path.name, notes=notes)
+
+
+def _sigmas(col, n: int, sigma_m, path: Path) -> np.ndarray:
+    """Per-axis 1-sigma (n, 3) from sigma_x/y/z, sigma_h, sigma, or the ``sigma_m`` default."""
+    out = np.full((n, 3), np.nan)
+    one, h = col("sigma"), col("sigma_h")
+    if one is not None:
+        out[:] = one[:, None]
+    if h is not None:
+        out[:, :2] = np.where(np.isfinite(h), h, out[:, 0])[:, None]
+    for i, a in enumerate("xyz"):
+        c = col(f"sigma_{a}")
+        if c is not None:
+            out[:, i] = np.where(np.isfinite(c), c, out[:, i])
+    if sigma_m is not None:
+        out = np.where(np.isfinite(out), out, np.broadcast_to(np.asarray(sigma_m, float), (n, 3)))
+    if not np.isfinite(out).all():
+        i = int(np.argmax(~np.isfinite(out).all(1)))
+        raise bad_input(
+            f"{path.name} line {i + 2} sigma",
+            out[i].tolist(),
+            "a 1-sigma per axis (sigma_x, sigma_y, sigma_z, sigma_h or sigma columns)",
+            "add the survey's stated accuracy, or pass sigma_m=",
+        )
+    return out
+
+
+def check_in_area(
+    control: ControlPoints, bounds: tuple[float, float, float, float], what: str = "map"
+) -> None:
+    """Raise an :class:`InputError` naming the first control point outside ``bounds``
+    (west, south, east, north, in the control's CRS)."""
+    w, s, e, n = bounds
+    x, y = control.xyz[:, 0], control.xyz[:, 1]
+    out = ~((x >= w) & (x <= e) & (y >= s) & (y <= n))
+    if out.any():
+        i = int(np.argmax(out))
+        raise bad_input(
+            f"control point {control.ids[i]!r}",
+            f"({x[i]:.3f}, {y[i]:.3f}) {control.crs}; {int(out.sum())} of {control.n} outside",
+            f"a point inside the {what} ({w:.1f}, {s:.1f}, {e:.1f}, {n:.1f})",
+            "check its CRS and coordinates, or remove points of other sites from the file",
+        )
+
+
+def check_independent(control: ControlPoints, checkpoints: Any, tol_m: float = 0.5) -> None:
+    """ASPRS 2023: checkpoints must be independent of control. Raise an :class:`InputError`
+    naming a point that is both (same id, or within ``tol_m`` horizontally).
+
+    ``checkpoints``: an object with ``xy`` (n, 2) or ``xyz`` (n, 3), optional ``ids`` and
+    ``crs`` (``toolkit`` checkpoints, :class:`ControlPoints`), or a mapping with ``x, y[, id,
+    crs]``. Checkpoints in another CRS are reprojected to the control's.
+    """
+    get = checkpoints.get if isinstance(checkpoints, dict) else None
+    if get is not None:
+        xy = np.column_stack([get("x"), get("y")]).astype(float)
+        ids, crs = get("id"), get("crs")
+    else:
+        xy = getattr(checkpoints, "xy", None)
+        xy = np.asarray(xy if xy is not None else checkpoints.xyz, float)[:, :2]
+        ids, crs = getattr(checkpoints, "ids", None), getattr(checkpoints, "crs", None)
+    if crs is not None and not CRS.from_user_input(crs).equals(CRS.from_user_input(control.crs)):
+        tr = Transformer.from_crs(crs, control.crs, always_xy=True)
+        xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
+    if ids is not None:
+        same = sorted(set(np.asarray(ids).astype(str)) & set(control.ids))
+        if same:
+            raise bad_input(
+                "checkpoints", f"point {same[0]!r} ({len(same)} shared ids)",
+                "checkpoints independent of the control (ASPRS 2023)",
+                "use each surveyed point either as control or as checkpoint",
+            )  # fmt: skip
+    if len(xy):
+        from scipy.spatial import cKDTree
+
+        d, j = cKDTree(xy).query(control.xyz[:, :2])
+        close = np.flatnonzero(d <= tol_m)
+        if close.size:
+            i = int(close[0])
+            raise bad_input(
+                "checkpoints",
+                f"checkpoint row {int(j[i])} is {d[i]:.3f} m from control point "
+                f"{control.ids[i]!r} ({close.size} such pairs)",
+                f"checkpoints more than {tol_m} m from every control point (ASPRS 2023)",
+                "use each surveyed point either as control or as checkpoint",
+            )
+
+
+@dataclass
+class ControlPlan:
+    """How each control point enters one log's graph (local ENU of the log, m)."""
+
+    control: ControlPoints  # in the log's CRS
+    local_xyz: np.ndarray  # (n, 3) relative to log.origin
+    stops: dict[int, np.ndarray]  # control row -> stop keyframes
+    targets: dict[int, int]  # control row -> landmark (track) id, if tracked at all
+    unused: dict[str, str] = field(default_factory=dict)  # id -> reason
+    used: dict[str, str] = field(default_factory=dict)  # id -> "stop" | "target" | both
+
+
+def plan_control(log, control: ControlPoints, area_margin_m: float = 50.0) -> ControlPlan:
+    """Match ``control`` to ``log`` (before any estimation, so that bad input fails fast).
+
+    Reprojects to the log's CRS; raises for a point outside the survey area (the GPS fixes'
+    extent padded by ``area_margin_m``), for a ``control_id`` in the keyframes naming no
+    control point, and for a stop more than ``area_margin_m`` from the GPS fixes around it.
+    """
+    ctrl = control.to_crs(log.crs)
+    local = ctrl.xyz - np.r_[log.origin, 0.0]
+    if log.gps_k.size:
+        lo, hi = log.gps_xyz[:, :2].min(0), log.gps_xyz[:, :2].max(0)
+        o = log.origin
+        area = (*(lo + o - area_margin_m), *(hi + o + area_margin_m))
+        check_in_area(ctrl, (area[0], area[1], area[2], area[3]), "survey area (GPS extent)")
+    row = {name: i for i, name in enumerate(ctrl.ids)}
+    stops: dict[int, list[int]] = {}
+    kf_ids = getattr(log, "control_id", None)
+    if kf_ids is not None:
+        for k in np.flatnonzero(kf_ids != ""):
+            name = str(kf_ids[k])
+            if name not in row:
+                raise bad_input(
+                    f"keyframes.control_id at k={int(k)}", name,
+                    f"one of the control points {sorted(row)[:8]}",
+                    "add the point to the control file or fix the id in the log",
+                )  # fmt: skip
+            stops.setdefault(row[name], []).append(int(k))
+    for i, ks in stops.items():
+        near = np.flatnonzero(np.abs(log.gps_k - np.median(ks)) <= 30)
+        if near.size:
+            d = np.linalg.norm(log.gps_xyz[near, :2].mean(0) - local[i, :2])
+            if d > area_margin_m:
+                raise bad_input(
+                    f"control point {ctrl.ids[i]!r}",
+                    f"{d:.1f} m from the GPS around its stop (keyframe {ks[0]})",
+                    f"within {area_margin_m} m",
+                    "check keyframes.control_id and the control file's CRS",
+                )
+    targets = {i: int(t) for i, t in enumerate(ctrl.target_id) if t >= 0}
+    plan = ControlPlan(ctrl, local, {i: np.array(v) for i, v in stops.items()}, targets)
+    for i, name in enumerate(ctrl.ids):
+        if i not in stops and i not in targets:
+            plan.unused[name] = "not_visited_or_tracked"
+    return plan
+
+
+def add_control_factors(plan: ControlPlan, isam, history, landmarks: set[int]) -> None:
+    """Add the stop priors and target priors of ``plan`` to ``isam`` and ``history``.
+
+    ``landmarks``: ids of the tracks that became landmarks. Updates ``plan.used`` and
+    ``plan.unused`` (a target whose track never became a landmark: ``target_not_in_graph``).
+    """
+    import gtsam
+
+    X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
+    graph = gtsam.NonlinearFactorGraph()
+    ctrl = plan.control
+    for i, ks in plan.stops.items():
+        sig = np.sqrt(ks.size * ctrl.sigma[i] ** 2 + ctrl.centring_sigma_m**2)
+        noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+        for k in ks:  # GPSFactor: error t(X_k) - p, a position prior with no bias term
+            graph.add(gtsam.GPSFactor(X(int(k)), plan.local_xyz[i], noise))
+        plan.used[ctrl.ids[i]] = "stop"
+    for i, lid in plan.targets.items():
+        name = ctrl.ids[i]
+        if lid not in landmarks:
+            if name not in plan.used:
+                plan.unused[name] = "target_not_in_graph"
+            continue
+        noise = gtsam.noiseModel.Diagonal.Sigmas(ctrl.sigma[i])
+        graph.add(gtsam.PriorFactorPoint3(L(lid), plan.local_xyz[i], noise))
+        plan.used[name] = "stop+target" if name in plan.used else "target"
+        plan.unused.pop(name, None)
+    if graph.size():
+        isam.update(graph, gtsam.Values())
+        history.push_back(graph)
+
+
+def control_report(plan: ControlPlan, result) -> dict[str, Any]:
+    """Which control was used and its residuals (estimate minus control, m, E N U) at the
+    final estimate: per stop point the mean of its stop keyframes, per target its landmark."""
+    ctrl, used = plan.control, []
+    lm_row = {int(j): r for r, j in enumerate(result.landmark_id)}
+    for i, name in enumerate(ctrl.ids):
+        kind = plan.used.get(name)
+        if kind is None:
+            continue
+        entry: dict[str, Any] = {"id": str(name), "kind": kind}
+        if i in plan.stops:
+            ks = plan.stops[i]
+            res = result.keyframe_xyz[ks].mean(0) - plan.local_xyz[i]
+            entry.update({"keyframes": ks.tolist(), "stop_residual_m": res.tolist()})
+        if i in plan.targets and plan.targets[i] in lm_row:
+            res = result.landmark_xyz[lm_row[plan.targets[i]]] - plan.local_xyz[i]
+            entry.update({"target_id": plan.targets[i], "target_residual_m": res.tolist()})
+        entry["sigma_m"] = ctrl.sigma[i].tolist()
+        used.append(entry)
+    return {
+        "source": ctrl.source,
+        "crs": ctrl.crs,
+        "n_points": ctrl.n,
+        "n_used": len(used),
+        "used": used,
+        "unused": dict(plan.unused),
+        "centring_sigma_m": ctrl.centring_sigma_m,
+    }

@@ -1,0 +1,94 @@
+"""Simulated ground control for a simulated traverse: the rover stops on surveyed points (the
+``control_id`` keyframe column) and, optionally, the camera tracks marked targets.
+
+The traverse itself is not changed (same seed, same bytes): the control draws come from
+their own stream, child 1 of the seed's ``numpy.random.SeedSequence``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from terrain.errors import bad_input
+
+from .control import ControlPoints
+from .log import MeasurementLog
+
+__all__ = ["path_corners", "simulate_control"]
+
+
+def path_corners(log: MeasurementLog) -> np.ndarray:
+    """Keyframes (4,) nearest to the corners of the true path's bounding box (SW, SE, NE, NW):
+    on a lawnmower, the survey's four corners, where the swaths turn."""
+    if not log.has_truth:
+        raise bad_input("log", "no truth", "a simulated log", "use simulate_traverse()")
+    xy = log.truth["xyz"][:, :2]
+    (w, s), (e, n) = xy.min(0), xy.max(0)
+    corners = np.array([[w, s], [e, s], [e, n], [w, n]])
+    return np.array([int(np.argmin(np.linalg.norm(xy - c, axis=1))) for c in corners])
+
+
+def simulate_control(
+    log: MeasurementLog,
+    keyframes: Any = None,
+    sigma_m: float | tuple[float, float, float] = 0.02,
+    centring_sigma_m: float = 0.02,
+    seed: int | None = None,
+    names: Any = None,
+) -> tuple[MeasurementLog, ControlPoints, np.ndarray]:
+    """Stop the rover on control points at ``keyframes`` and survey them.
+
+    The mark lies where the rover's body origin truly was at the stop keyframe, off by the
+    centring error ``N(0, centring_sigma_m^2)`` per axis; the surveyed coordinates add the
+    survey error ``N(0, sigma_m^2)`` per axis.
+
+    Parameters
+    ----------
+    log : MeasurementLog
+        A simulated log (with truth).
+    keyframes : sequence of int, optional
+        Stop keyframes, one per control point; default :func:`path_corners` (4 corners).
+    sigma_m : float or 3 floats
+        1-sigma of the survey (m, E N U); the stated sigma of the returned points.
+    centring_sigma_m : float
+        1-sigma of the rover over the mark (m, per axis).
+    seed : int, optional
+        Default the log's seed.
+    names : sequence of str, optional
+        Point ids; default ``GCP1..GCPn``.
+
+    Returns
+    -------
+    log : MeasurementLog
+        The same log with ``control_id`` naming the points at their stop keyframes.
+    control : ControlPoints
+        Surveyed points in the log's CRS (projected easting, northing, elevation).
+    true_xyz : ndarray of shape (n, 3)
+        True mark positions, projected CRS.
+    """
+    ks = path_corners(log) if keyframes is None else np.asarray(keyframes, int).reshape(-1)
+    if ks.size == 0 or ks.min() < 0 or ks.max() >= log.n_keyframes:
+        raise bad_input("keyframes", ks.tolist(), f"indices in [0, {log.n_keyframes})", "")
+    n = ks.size
+    ids = np.array([f"GCP{i + 1}" for i in range(n)] if names is None else list(names), str)
+    seed = int(log.seed or 0) if seed is None else int(seed)
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
+    sigma = np.broadcast_to(np.asarray(sigma_m, float), (n, 3))
+    true = log.truth["xyz"][ks] + rng.normal(0.0, 1.0, (n, 3)) * centring_sigma_m
+    true[:, :2] += log.origin
+    surveyed = true + rng.normal(0.0, 1.0, (n, 3)) * sigma
+    control_id = np.full(log.n_keyframes, "", dtype=object)
+    if log.control_id is not None:
+        control_id[:] = log.control_id
+    taken = [int(k) for k in ks if control_id[k] != ""]
+    if taken or len(set(ks.tolist())) < n:
+        raise bad_input("keyframes", ks.tolist(), "one new stop per keyframe", "pick others")
+    control_id[ks] = ids
+    ctrl = ControlPoints(ids, surveyed, sigma, log.crs, None, centring_sigma_m, "simulated")
+    if not math.isfinite(float(surveyed.sum())):
+        raise bad_input("log.truth", "non-finite", "finite true positions", "")
+    return replace(log, control_id=control_id.astype(str)), ctrl, true
