@@ -5,6 +5,8 @@
 """
 
 from .baselines import delaunay_linear
+from .change import difference
+from .coregister import Coregistration, coregister
 from .errors import (
     CRSMismatchError,
     DegenerateFitWarning,
@@ -35,16 +37,19 @@ from .prior import ConstantMean, TriangulatedMean, as_mean_function, coarse_dem
 from .raster_mean import RasterMean
 from .samples import ElevationSamples
 from .sampling import LandmarkNoise, sample_along_path, sample_dem
+from .surface_change import default_outline, second_epoch, surface_change
 from .synthetic import TerrainFeatures, default_site, random_terrain, terrain_function
 from .tiled import TileSpec
 from .tuning import PaperTuning, tune_paper_grid
 from .validation import CrossValidation, cross_validate
+from .volume import VolumeChange, volume_change
 
 __all__ = [
     "DEFAULT_CRS",
     "CRSMismatchError",
     "DegenerateFitWarning",
     "ConstantMean",
+    "Coregistration",
     "CrossValidation",
     "DuplicateLocationError",
     "ElevationSamples",
@@ -67,12 +72,16 @@ __all__ = [
     "TileSpec",
     "TilingWarning",
     "TriangulatedMean",
+    "VolumeChange",
     "as_mean_function",
     "coarse_dem",
+    "coregister",
     "covered_fraction",
     "cross_validate",
+    "default_outline",
     "default_site",
     "delaunay_linear",
+    "difference",
     "evaluate",
     "gaussian_field_site",
     "gaussian_field_terrain",
@@ -86,7 +95,10 @@ __all__ = [
     "sample_dem",
     "sample_hyperparameters",
     "se_random_field",
+    "second_epoch",
     "standardized_error_stats",
+    "surface_change",
     "terrain_function",
     "tune_paper_grid",
+    "volume_change",
 ]
