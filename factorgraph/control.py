@@ -115,7 +115,7 @@ class ControlPoints:
             if bad.any():
                 i = int(np.argmax(bad))
                 raise bad_input(
-                    f"control point {ids[i]!r} {name}",
+                    f"control point {str(ids[i])!r} {name}",
                     a[i].tolist(),
                     "finite values" + (" > 0 (m)" if name == "sigma" else ""),
                     "repair the row or remove the point",
@@ -150,7 +150,7 @@ class ControlPoints:
         if not np.isfinite(xy).all():
             i = int(np.argmax(~np.isfinite(xy).all(1)))
             raise bad_input(
-                f"control point {self.ids[i]!r}",
+                f"control point {str(self.ids[i])!r}",
                 self.xyz[i, :2].tolist(),
                 f"coordinates that project from {self.crs} to {dst.to_string()}",
                 "check the CRS of the control file (lon/lat order, zone)",
@@ -327,7 +327,7 @@ def check_in_area(
     if out.any():
         i = int(np.argmax(out))
         raise bad_input(
-            f"control point {control.ids[i]!r}",
+            f"control point {str(control.ids[i])!r}",
             f"({x[i]:.3f}, {y[i]:.3f}) {control.crs}; {int(out.sum())} of {control.n} outside",
             f"a point inside the {what} ({w:.1f}, {s:.1f}, {e:.1f}, {n:.1f})",
             "check its CRS and coordinates, or remove points of other sites from the file",
@@ -354,10 +354,10 @@ def check_independent(control: ControlPoints, checkpoints: Any, tol_m: float = 0
         tr = Transformer.from_crs(crs, control.crs, always_xy=True)
         xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
     if ids is not None:
-        same = sorted(set(np.asarray(ids).astype(str)) & set(control.ids))
+        same = sorted(set(np.asarray(ids).astype(str).tolist()) & set(control.ids.tolist()))
         if same:
             raise bad_input(
-                "checkpoints", f"point {same[0]!r} ({len(same)} shared ids)",
+                f"checkpoint {same[0]!r}", f"also a control point ({len(same)} shared ids)",
                 "checkpoints independent of the control (ASPRS 2023)",
                 "use each surveyed point either as control or as checkpoint",
             )  # fmt: skip
@@ -371,7 +371,7 @@ def check_independent(control: ControlPoints, checkpoints: Any, tol_m: float = 0
             raise bad_input(
                 "checkpoints",
                 f"checkpoint row {int(j[i])} is {d[i]:.3f} m from control point "
-                f"{control.ids[i]!r} ({close.size} such pairs)",
+                f"{str(control.ids[i])!r} ({close.size} such pairs)",
                 f"checkpoints more than {tol_m} m from every control point (ASPRS 2023)",
                 "use each surveyed point either as control or as checkpoint",
             )
@@ -422,7 +422,7 @@ def plan_control(log, control: ControlPoints, area_margin_m: float = 50.0) -> Co
             d = np.linalg.norm(log.gps_xyz[near, :2].mean(0) - local[i, :2])
             if d > area_margin_m:
                 raise bad_input(
-                    f"control point {ctrl.ids[i]!r}",
+                    f"control point {str(ctrl.ids[i])!r}",
                     f"{d:.1f} m from the GPS around its stop (keyframe {ks[0]})",
                     f"within {area_margin_m} m",
                     "check keyframes.control_id and the control file's CRS",
