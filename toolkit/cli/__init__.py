@@ -39,24 +39,36 @@ app.command("report")(report.report_command)
 err_console = Console(stderr=True)
 
 
+INTERRUPTED = 130
+"""Exit code of a command stopped by Ctrl-C (SIGINT): 128 + signal 2, the shell convention."""
+
+
 def main() -> None:
-    """Entry point: library errors become one clear line and exit code 2 (bad input)."""
+    """Entry point: library errors become one clear line and exit code 2 (bad input); Ctrl-C
+    exits 130 with one line; every other exit code a command sets is passed on."""
     try:
-        app(standalone_mode=False)
+        rc = app(standalone_mode=False)
     except GlacimapError as exc:
         # escape: messages quote user values, and "[table]" would read as rich markup
         err_console.print(f"[bold red]error:[/] {escape(str(exc))}")
         sys.exit(2)
     except (typer.Abort, KeyboardInterrupt):
-        err_console.print("[yellow]aborted[/]")
-        sys.exit(130)
+        rc = INTERRUPTED
     except typer.Exit as exc:
-        sys.exit(exc.exit_code)
+        rc = exc.exit_code
     except Exception as exc:  # click usage errors carry their own exit code
         if isinstance(exc, _click_exceptions()):
             exc.show()
             sys.exit(exc.exit_code)
         raise
+    # Without standalone mode typer *returns* the exit code of ``typer.Exit`` and turns
+    # KeyboardInterrupt into Exit(130) (typer.core._main): it must reach the shell.
+    if rc == INTERRUPTED:
+        err_console.print(
+            "[yellow]interrupted (Ctrl-C):[/] stopped; no file is left half-written "
+            "(every write is atomic)"
+        )
+    sys.exit(rc if isinstance(rc, int) else 0)
 
 
 def _click_exceptions() -> tuple[type[Exception], ...]:

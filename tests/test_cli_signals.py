@@ -1,0 +1,104 @@
+"""Ctrl-C and exit codes of the ``glacimap`` entry point, with a real SIGINT to a real process."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import typer
+
+import toolkit.cli as cli
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _start(args: list[str], cwd: Path) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), COLUMNS="100")
+    return subprocess.Popen(
+        [sys.executable, "-m", "toolkit", *args],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _wait_until_running(proc: subprocess.Popen, out: Path, timeout: float = 120.0) -> None:
+    """Wait until the command has made its output folder (it is past start-up, in its work)."""
+    t0 = time.monotonic()
+    while not out.is_dir():
+        assert proc.poll() is None, f"ended early: {proc.returncode} {proc.stderr.read()}"
+        assert time.monotonic() - t0 < timeout, f"no {out} after {timeout} s"
+        time.sleep(0.1)
+    time.sleep(2.0)  # well inside the work (simulation / iSAM2 / GP fit), not in start-up
+
+
+def _products(out: Path) -> list[str]:
+    return sorted(p.name for p in out.rglob("*") if p.is_file()) if out.exists() else []
+
+
+def test_sigint_during_run_exits_130_with_one_line_and_no_product(tmp_path):
+    proc = _start(["run", "--out", "o"], tmp_path)
+    try:
+        _wait_until_running(proc, tmp_path / "o")
+        os.kill(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "interrupted" in lines[0], err
+    assert "Traceback" not in err
+    left = _products(tmp_path / "o")
+    assert not left, f"interrupted run left files: {left}"
+
+
+def test_sigint_during_reconstruct_demo_exits_130(tmp_path):
+    proc = _start(["reconstruct", "--demo", "--out", "r"], tmp_path)
+    try:
+        _wait_until_running(proc, tmp_path / "r")  # the demo's GP fit takes tens of seconds
+        os.kill(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    left = _products(tmp_path / "r")
+    assert not left, f"interrupted reconstruct left files (temporary ones included): {left}"
+
+
+@pytest.mark.parametrize("code", [0, 3, 130])
+def test_main_passes_on_the_exit_code_a_command_sets(monkeypatch, capsys, code):
+    """typer returns (does not raise) Exit codes when not standalone: main must pass them on."""
+    probe = typer.Typer()
+
+    @probe.command()
+    def stop() -> None:
+        raise typer.Exit(code)
+
+    monkeypatch.setattr(cli, "app", probe)
+    monkeypatch.setattr(sys, "argv", ["glacimap"])
+    with pytest.raises(SystemExit) as exc:
+        cli.main()
+    assert exc.value.code == code
+    assert ("interrupted" in capsys.readouterr().err) == (code == 130)
+
+
+def test_main_turns_keyboard_interrupt_into_130(monkeypatch):
+    probe = typer.Typer()
+
+    @probe.command()
+    def stop() -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "app", probe)
+    monkeypatch.setattr(sys, "argv", ["glacimap"])
+    with pytest.raises(SystemExit) as exc:
+        cli.main()
+    assert exc.value.code == 130
