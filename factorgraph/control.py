@@ -403,7 +403,7 @@ def plan_control(log, control: ControlPoints, area_margin_m: float = 50.0) -> Co
         o = log.origin
         area = (*(lo + o - area_margin_m), *(hi + o + area_margin_m))
         check_in_area(ctrl, (area[0], area[1], area[2], area[3]), "survey area (GPS extent)")
-    row = {name: i for i, name in enumerate(ctrl.ids)}
+    row = {name: i for i, name in enumerate(ctrl.ids.tolist())}
     stops: dict[int, list[int]] = {}
     kf_ids = getattr(log, "control_id", None)
     if kf_ids is not None:
@@ -429,7 +429,7 @@ def plan_control(log, control: ControlPoints, area_margin_m: float = 50.0) -> Co
                 )
     targets = {i: int(t) for i, t in enumerate(ctrl.target_id) if t >= 0}
     plan = ControlPlan(ctrl, local, {i: np.array(v) for i, v in stops.items()}, targets)
-    for i, name in enumerate(ctrl.ids):
+    for i, name in enumerate(ctrl.ids.tolist()):
         if i not in stops and i not in targets:
             plan.unused[name] = "not_visited_or_tracked"
     return plan
@@ -451,9 +451,9 @@ def add_control_factors(plan: ControlPlan, isam, history, landmarks: set[int]) -
         noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
         for k in ks:  # GPSFactor: error t(X_k) - p, a position prior with no bias term
             graph.add(gtsam.GPSFactor(X(int(k)), plan.local_xyz[i], noise))
-        plan.used[ctrl.ids[i]] = "stop"
+        plan.used[str(ctrl.ids[i])] = "stop"
     for i, lid in plan.targets.items():
-        name = ctrl.ids[i]
+        name = str(ctrl.ids[i])
         if lid not in landmarks:
             if name not in plan.used:
                 plan.unused[name] = "target_not_in_graph"
@@ -472,7 +472,7 @@ def control_report(plan: ControlPlan, result) -> dict[str, Any]:
     final estimate: per stop point the mean of its stop keyframes, per target its landmark."""
     ctrl, used = plan.control, []
     lm_row = {int(j): r for r, j in enumerate(result.landmark_id)}
-    for i, name in enumerate(ctrl.ids):
+    for i, name in enumerate(ctrl.ids.tolist()):
         kind = plan.used.get(name)
         if kind is None:
             continue
