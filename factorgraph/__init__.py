@@ -2,3 +2,14 @@
 
 Depends on :mod:`terrain` only (DESIGN.md §2). Filled by the localization issue.
 """
+
+from .control import ControlPoints, check_in_area, check_independent, read_control
+from .control_sim import simulate_control
+
+__all__ = [
+    "ControlPoints",
+    "check_in_area",
+    "check_independent",
+    "read_control",
+    "simulate_control",
+]
