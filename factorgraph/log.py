@@ -261,6 +261,13 @@ def _read_table(folder: Path, name: str, required: bool = True):
                     f"columns {missing} too",
                     "see the file layout in factorgraph/log.py",
                 )
+            if required and df.empty:  # a header only: no array math may see zero rows
+                raise bad_input(
+                    path.name,
+                    "a header and no rows",
+                    f"at least one {name} row",
+                    f"the {name} table is empty: check the logger or the export that wrote it",
+                )
             return df
     if required:
         raise bad_input(

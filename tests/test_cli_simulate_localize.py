@@ -284,3 +284,14 @@ def test_usage_errors_exit_2_without_traceback(tmp_path, args, needle):
         cwd=tmp_path,
     )
     assert res.returncode == 2 and needle in res.stderr and "Traceback" not in res.stderr
+
+
+@pytest.mark.parametrize("table", ["gps", "keyframes", "odometry", "observations"])
+def test_localize_empty_required_table_is_one_line(log_copy, tmp_path, table):
+    """Issue 17: a gps.csv with a header only ended in a 'zero-size array' traceback."""
+    path = log_copy / f"{table}.csv"
+    path.write_text(path.read_text().splitlines()[0] + "\n")  # the header, no rows
+    out = tmp_path / "out"
+    msg = _bad(["localize", log_copy, "--out", out], f"{table}.csv", "no rows", "Fix")
+    assert "\n" not in msg.strip()
+    assert not out.exists() or not any(out.iterdir())
