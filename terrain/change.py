@@ -108,7 +108,10 @@ def _provenance(prefix: str, ds: Any) -> dict[str, Any]:
     for k in PROVENANCE_KEYS:
         if k in ds.attrs:
             v = ds.attrs[k]
-            out[f"{prefix}_{k}"] = v if isinstance(v, str | int | float) else json.dumps(v)
+            v = v.item() if isinstance(v, np.generic) else v
+            out[f"{prefix}_{k}"] = (
+                v if isinstance(v, str | int | float) else json.dumps(v, default=str)
+            )
     return out
 
 

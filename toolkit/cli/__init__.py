@@ -10,7 +10,7 @@ from rich.markup import escape
 
 from terrain.errors import GlacimapError
 
-from . import certify, export, localize, plan, reconstruct, report, run, simulate, sweep
+from . import certify, change, export, localize, plan, reconstruct, report, run, simulate, sweep
 
 app = typer.Typer(
     name="glacimap",
@@ -35,6 +35,7 @@ app.command("sweep")(sweep.sweep_command)
 app.command("export")(export.export_command)
 app.command("certify")(certify.certify_command)
 app.command("report")(report.report_command)
+app.command("change")(change.change_command)
 
 err_console = Console(stderr=True)
 

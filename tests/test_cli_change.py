@@ -1,0 +1,125 @@
+"""``glacimap change``: two epochs in, dh COG + volume tables + HTML report out.
+
+Inputs are made here: the default site (before) and its seeded second epoch (after, known
+change), shifted 2 m east and +0.4 m to exercise the co-registration, with independent
+noise; the true volume change is the sum of the known change over the outline's cells.
+Outputs are read back with rasterio, json and csv.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pyogrio
+import pytest
+import rasterio
+import shapely
+from shapely.geometry import box
+from typer.testing import CliRunner
+
+from terrain import Grid, default_outline, default_site, surface_change
+from terrain.product import terrain_dataset
+from terrain.synthetic import DEFAULT_SITE_BOUNDS
+from terrain.volume import outline_weights
+from toolkit.cli import app
+from toolkit.export import write_cog
+
+runner = CliRunner()
+
+
+def _write_polygon(path, geom, crs="EPSG:32608"):
+    pyogrio.raw.write(
+        path, np.array([shapely.to_wkb(geom)], dtype=object), [], [], geometry_type="Polygon",
+        crs=crs,
+    )  # fmt: skip
+    return path
+
+
+@pytest.fixture(scope="module")
+def epochs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("epochs")
+    truth = default_site(resolution=2.0)
+    outline = default_outline(DEFAULT_SITE_BOUNDS)
+    change = surface_change(truth, outline, seed=7)
+    g = Grid.from_dataarray(truth)
+    rng = np.random.default_rng(0)
+    z0 = truth.values + rng.normal(0, 0.05, g.shape)
+    after = truth.values + change.values
+    # the later DEM is displaced 2 m east (one cell) and +0.4 m
+    shifted = np.full(g.shape, np.nan)
+    shifted[:, 1:] = after[:, :-1] + 0.4
+    shifted += rng.normal(0, 0.05, g.shape)
+    std = np.full(g.shape, 0.05)
+    b = terrain_dataset(g, z0, std, {"seed": 1, "epoch": "before"})
+    a = terrain_dataset(g, shifted, std, {"seed": 2, "epoch": "after"})
+    b.to_netcdf(d / "before.nc", engine="scipy")
+    write_cog(a, d / "after.tif")  # the NaN column is nodata
+    true_v = float(np.sum(outline_weights(g, outline) * change.values))
+    return d, outline, true_v
+
+
+def test_change_writes_products(epochs, tmp_path):
+    d, outline, true_v = epochs
+    gpkg = _write_polygon(tmp_path / "glacier.gpkg", outline)
+    out = tmp_path / "out"
+    res = runner.invoke(
+        app, ["change", str(d / "before.nc"), str(d / "after.tif"), "--outline", str(gpkg),
+              "--out", str(out)],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    assert vol["method"] == "variogram"
+    assert vol["coregistration"]["shift_east_m"] == pytest.approx(2.0, abs=0.1)
+    assert vol["coregistration"]["vertical_bias_m"] == pytest.approx(0.4, abs=0.03)
+    # the known change, within 3 sigma and within 2 % (thinning of ~1.7 m over ~8 ha)
+    assert abs(vol["volume_m3"] - true_v) < max(3 * vol["volume_std_m3"], 0.02 * abs(true_v))
+    assert vol["mass_kg"] == pytest.approx(850.0 * vol["volume_m3"])
+    with rasterio.open(out / "dh.tif") as src:
+        assert src.count == 2 and src.descriptions == ("dh", "dh_std")
+        assert src.crs.to_epsg() == 32608
+        dh = src.read(1)
+    assert np.nanmin(dh) < -2.0 and abs(np.nanmedian(dh[:20, :20])) < 0.05  # stable corner
+    rows = list(csv.DictReader((out / "volume.csv").open()))
+    assert rows[0]["quantity"] == "volume_change"
+    assert float(rows[0]["value"]) == pytest.approx(vol["volume_m3"])
+    html = (out / "change_report.html").read_text()
+    for key in ('id="budget"', 'id="fig-dh"', 'id="fig-dh_std"', 'id="fig-hypsometry"'):
+        assert key in html
+    assert len(vol["hypsometry"]) >= 4
+    assert not list(out.glob(".*"))  # no staging leftovers
+
+
+@pytest.mark.parametrize(
+    "case, match",
+    [
+        ("density", "density"),
+        ("outline_outside", "outline"),
+        ("stable_tiny", "MIN_STABLE_CELLS"),
+        ("no_overlap", "overlap"),
+    ],
+)
+def test_bad_input_writes_nothing(epochs, tmp_path, case, match):
+    d, outline, _ = epochs
+    gpkg = _write_polygon(tmp_path / "glacier.gpkg", outline)
+    args = ["change", str(d / "before.nc"), str(d / "after.tif"), "--outline", str(gpkg)]
+    if case == "density":
+        args += ["--density", "0"]
+    elif case == "outline_outside":
+        far = box(0, 0, 100, 100)
+        args[4] = str(_write_polygon(tmp_path / "far.gpkg", far))
+        args += ["--no-coregister"]
+    elif case == "stable_tiny":
+        w, s = DEFAULT_SITE_BOUNDS[:2]
+        args += ["--stable", str(_write_polygon(tmp_path / "s.gpkg", box(w, s, w + 20, s + 20)))]
+    else:
+        g = Grid.from_bounds((0, 0, 100, 100), 2.0)
+        far = terrain_dataset(g, np.zeros(g.shape), np.ones(g.shape), {})
+        far.to_netcdf(tmp_path / "far.nc", engine="scipy")
+        args[2] = str(tmp_path / "far.nc")
+    out = tmp_path / "out"
+    res = runner.invoke(app, [*args, "--out", str(out)])
+    assert res.exit_code != 0
+    assert match in str(res.exception)
+    assert not out.exists() or not any(out.iterdir())
