@@ -17,9 +17,13 @@ stream, ``factorgraph.control_sim``):
     (``factorgraph.control_sim.simulate_control``).
 ``stops2``
     Only the first and last stop (2 points, both ends of the traverse in time).
+``stops8``
+    A stop at every turn of the lawnmower (its 8 waypoints: both ends of every swath).
 
-Scores. Landmarks (all in the graph): mean and RMS of the vertical error against the truth;
-the shared-offset vertical 1-sigma the marginals state. Map: ``gp_satellite`` exactly as the
+Scores. Landmarks (all in the graph): mean and RMS of the vertical error against the truth,
+its NEES ``mean(e_z^2 / Sigma_zz)`` (1 when the stated 1-sigma is right); keyframes: mean
+vertical error (what the shared offset describes); the shared-offset vertical 1-sigma the
+marginals state. Map: ``gp_satellite`` exactly as the
 pipeline builds it (``TerrainGP`` on the selected landmarks, satellite prior, error budget),
 RMSE against the truth on the grid; certificate (``toolkit.certify``) against the run's 400
 seeded checkpoints: bias (DEM minus checkpoint), RMSE, std. Each case runs in its own process.
@@ -40,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._harness import in_subprocess, table, write_json  # noqa: E402
 
-CASES = ("none", "stops4", "stops2")
+CASES = ("none", "stops4", "stops2", "stops8")
 
 
 def _checkpoints(scenario: dict[str, Any], truth):
@@ -95,18 +99,22 @@ def _map(scenario, truth, loc, sel) -> dict[str, Any]:
 
 
 def run_case(case: str, seed: int, with_map: bool) -> dict[str, Any]:
-    from factorgraph.control_sim import path_corners, simulate_control
+    from factorgraph.control_sim import nearest_keyframes, path_corners, simulate_control
     from factorgraph.localize import LocalizeParams, localize
     from toolkit.config import load_scenario
     from toolkit.pipeline import make_plan, make_truth, select_samples, simulate_log
 
     scenario = load_scenario(None, {"seed": seed})
     truth = make_truth(scenario)
-    log = simulate_log(scenario, truth, make_plan(scenario, truth))
+    plan = make_plan(scenario, truth)
+    log = simulate_log(scenario, truth, plan)
     control = None
     if case != "none":
         ks = path_corners(log)
-        ks = ks if case == "stops4" else np.array([ks.min(), ks.max()])
+        if case == "stops2":
+            ks = np.array([ks.min(), ks.max()])
+        elif case == "stops8":
+            ks = nearest_keyframes(log, np.asarray(plan.waypoints))
         log, control, _ = simulate_control(log, ks, sigma_m=0.02, centring_sigma_m=0.02)
     t0 = time.perf_counter()
     loc = localize(log, LocalizeParams(**scenario["localize"]), control=control)
@@ -117,6 +125,8 @@ def run_case(case: str, seed: int, with_map: bool) -> dict[str, Any]:
         {
             "landmark_z_mean_m": float(ez.mean()),
             "landmark_z_rmse_m": float(np.sqrt(np.mean(ez**2))),
+            "landmark_z_nees": float(np.mean(ez**2 / loc.landmark_cov[:, 2, 2])),
+            "keyframe_z_mean_m": float(ek[:, 2].mean()),
             "keyframe_z_rmse_m": float(np.sqrt(np.mean(ek[:, 2] ** 2))),
             "keyframe_h_rmse_m": float(np.sqrt(np.mean((ek[:, :2] ** 2).sum(1)))),
             "shared_z_std_m": float(np.sqrt(loc.shared_offset_cov[2, 2])),
@@ -138,6 +148,8 @@ COLUMNS = [
     ("seed", "seed", "d"),
     ("landmark_z_mean_m", "lm z mean", ".3f"),
     ("landmark_z_rmse_m", "lm z RMSE", ".3f"),
+    ("landmark_z_nees", "lm z NEES", ".2f"),
+    ("keyframe_z_mean_m", "kf z mean", ".3f"),
     ("shared_z_std_m", "shared z σ", ".3f"),
     ("keyframe_h_rmse_m", "kf h RMSE", ".3f"),
     ("checkpoint_bias_m", "cp bias", ".3f"),

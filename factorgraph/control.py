@@ -14,7 +14,7 @@ Two ways in, both optional and both used when present:
 * **Targets** -- a marked target the camera tracks: a control point whose ``target_id`` is a
   track id (``observations.landmark_id``) gets ``PriorFactorPoint3`` on that landmark, when
   the track became a landmark. The matching rule is the id only: no nearest-landmark guess
-  (a survey-grade prior on a texture point a metre away is a slope-sized vertical error).
+  (texture points are metres apart; a 2 cm prior on one beside the mark is a false one).
 
 Factors are added after the online pass, before the batch refinement (one ``ISAM2.update``),
 so the online (filter) estimate is that of the rover without control.

@@ -18,7 +18,16 @@ from terrain.errors import bad_input
 from .control import ControlPoints
 from .log import MeasurementLog
 
-__all__ = ["path_corners", "simulate_control"]
+__all__ = ["nearest_keyframes", "path_corners", "simulate_control"]
+
+
+def nearest_keyframes(log: MeasurementLog, xy: np.ndarray) -> np.ndarray:
+    """Keyframe (n,) whose true position is nearest each projected point ``xy`` (n, 2)."""
+    if not log.has_truth:
+        raise bad_input("log", "no truth", "a simulated log", "use simulate_traverse()")
+    path = log.truth["xyz"][:, :2] + log.origin
+    pts = np.asarray(xy, float).reshape(-1, 2)
+    return np.array([int(np.argmin(np.linalg.norm(path - p, axis=1))) for p in pts], int)
 
 
 def path_corners(log: MeasurementLog) -> np.ndarray:
@@ -26,10 +35,9 @@ def path_corners(log: MeasurementLog) -> np.ndarray:
     on a lawnmower, the survey's four corners, where the swaths turn."""
     if not log.has_truth:
         raise bad_input("log", "no truth", "a simulated log", "use simulate_traverse()")
-    xy = log.truth["xyz"][:, :2]
+    xy = log.truth["xyz"][:, :2] + log.origin
     (w, s), (e, n) = xy.min(0), xy.max(0)
-    corners = np.array([[w, s], [e, s], [e, n], [w, n]])
-    return np.array([int(np.argmin(np.linalg.norm(xy - c, axis=1))) for c in corners])
+    return nearest_keyframes(log, np.array([[w, s], [e, s], [e, n], [w, n]]))
 
 
 def simulate_control(
