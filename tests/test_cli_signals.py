@@ -1,4 +1,5 @@
-"""Ctrl-C and exit codes of the ``glacimap`` entry point, with a real SIGINT to a real process."""
+"""The ``glacimap`` entry point as a shell sees it: Ctrl-C (a real SIGINT to a real process), exit
+codes, and stdout redirected to a file."""
 
 import os
 import signal
@@ -102,3 +103,27 @@ def test_main_turns_keyboard_interrupt_into_130(monkeypatch):
     with pytest.raises(SystemExit) as exc:
         cli.main()
     assert exc.value.code == 130
+
+
+def test_print_default_redirected_to_a_file_is_the_scenario_byte_for_byte(tmp_path):
+    """Issue 17: `glacimap run --print-default > my.toml` wrapped comments at 80 columns (rich,
+    stdout not a terminal), and the file did not parse."""
+    from toolkit.config import DEFAULT_SCENARIO, DEFAULT_TOML, load_scenario
+
+    env = {k: v for k, v in os.environ.items() if k not in ("COLUMNS", "LINES")}
+    env["PYTHONPATH"] = str(ROOT)
+    target = tmp_path / "my.toml"
+    with target.open("w") as fh:
+        rc = subprocess.run(
+            [sys.executable, "-m", "toolkit", "run", "--print-default"],
+            cwd=tmp_path,
+            env=env,
+            stdout=fh,
+            stderr=subprocess.PIPE,
+            timeout=120,
+        ).returncode
+    assert rc == 0
+    text = target.read_text()
+    assert max(len(line) for line in DEFAULT_TOML.splitlines()) > 80  # would have wrapped
+    assert text == DEFAULT_TOML
+    assert load_scenario(target) == load_scenario(None) == DEFAULT_SCENARIO

@@ -16,7 +16,7 @@ from typing import Any
 
 from terrain.errors import bad_input
 
-__all__ = ["DEFAULT_SCENARIO", "DEFAULT_TOML", "load_scenario"]
+__all__ = ["DEFAULT_SCENARIO", "DEFAULT_TOML", "load_scenario", "print_default"]
 
 DEFAULT_TOML = """\
 # glacimap scenario: the paper's simulated glacier site (Section IV), seed 0.
@@ -139,6 +139,19 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     for k, v in over.items():
         out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
     return out
+
+
+def print_default(file: Any = None) -> None:
+    """Write :data:`DEFAULT_TOML` to ``file`` (default ``sys.stdout``) byte for byte.
+
+    Not through rich: a console that is not a terminal wraps long lines at 80 columns, which
+    split comments onto lines TOML cannot parse (``glacimap run --print-default > my.toml``).
+    """
+    import sys
+
+    out = sys.stdout if file is None else file
+    out.write(DEFAULT_TOML)
+    out.flush()
 
 
 def load_scenario(path: str | Path | None = None, overrides: dict | None = None) -> dict:

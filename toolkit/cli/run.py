@@ -22,12 +22,13 @@ def run_command(
     ] = False,
 ) -> None:
     """Plan → simulate → iSAM2 → select → reconstruct → certify → export → report."""
-    from toolkit.config import DEFAULT_TOML, load_scenario
+    from toolkit.config import load_scenario
+    from toolkit.config import print_default as print_toml
     from toolkit.pipeline import STAGES, run_scenario
 
     console = Console()
     if print_default:
-        console.print(DEFAULT_TOML, markup=False, highlight=False)
+        print_toml()  # raw: rich wraps comments at 80 columns when stdout is not a terminal
         raise typer.Exit(0)
     overrides = {"seed": seed} if seed is not None else None
     load_scenario(config, overrides)  # bad input fails here, before the progress display
