@@ -1,0 +1,170 @@
+"""GPS fixes as every field reader returns them, their sigmas, time order and projection.
+
+Every GPS reader (:mod:`.nmea`, :mod:`.gpx`, :mod:`.rtklib`) turns its records into a
+:class:`GPSFixes`: UTC time, geographic latitude / longitude and ellipsoidal height, a
+per-fix 1-sigma (E, N, U) and the receiver's quality label. Records that cannot be used are
+counted by reason, never silently dropped.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from terrain.errors import bad_input
+
+__all__ = ["UERE_M", "VERTICAL_FACTOR", "GPSFixes", "project_fixes", "sigma_from_dop"]
+
+#: Per-axis horizontal 1-sigma (m) at HDOP 1 by solution kind: the user-equivalent range
+#: error. Autonomous SPS ~2.5 m, SBAS / DGPS ~0.8 m, RTK float ~0.3 m, RTK fixed ~0.02 m
+#: (receiver datasheets, e.g. u-blox ZED-F9P: 1.5 m CEP SPS, 0.01 m + 1 ppm RTK). Override
+#: per survey with ``gps.sigma_by_quality`` in ``survey.json``.
+UERE_M = {"single": 2.5, "dgps": 0.8, "rtk_float": 0.3, "rtk_fixed": 0.02, "ppp": 0.1}
+#: Vertical over horizontal 1-sigma when the file states no vertical sigma (VDOP / HDOP is
+#: 1.5-2 for an open sky; the geometry of satellites above the horizon only).
+VERTICAL_FACTOR = 1.7
+
+
+def sigma_from_dop(kind: str, hdop: float, vdop: float | None, table: dict[str, float]) -> tuple:
+    """Per-axis 1-sigma (E, N, U) in m: ``uere * hdop`` horizontally, ``uere * vdop`` (or
+    ``VERTICAL_FACTOR * uere * hdop``) vertically. A missing or non-positive HDOP gives NaN
+    (the reader then uses the stated sensor model)."""
+    uere = table[kind]
+    if not (hdop is not None and math.isfinite(hdop) and hdop > 0):
+        return (math.nan, math.nan, math.nan)
+    up = uere * vdop if vdop is not None and math.isfinite(vdop) and vdop > 0 else None
+    return (uere * hdop, uere * hdop, up if up is not None else VERTICAL_FACTOR * uere * hdop)
+
+
+@dataclass
+class GPSFixes:
+    """Usable fixes of one GPS file, in time order.
+
+    Attributes
+    ----------
+    utc_s : ndarray of shape (n,)
+        UTC time, POSIX seconds.
+    lat_deg, lon_deg, h_m : ndarray of shape (n,)
+        Geographic position; ``h_m`` ellipsoidal height (m) unless the survey says otherwise.
+    sigma : ndarray of shape (n, 3)
+        Per-fix 1-sigma (E, N, U) in m; NaN where the file states nothing.
+    quality : ndarray of shape (n,), str
+        Solution kind (a key of :data:`UERE_M`).
+    skipped : Counter
+        Records not used, by reason.
+    n_records : int
+        Position records read (used + skipped).
+    fmt : str
+        ``"nmea"``, ``"gpx"`` or ``"rtklib"``.
+    """
+
+    utc_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    h_m: np.ndarray
+    sigma: np.ndarray
+    quality: np.ndarray
+    skipped: Counter = field(default_factory=Counter)
+    n_records: int = 0
+    fmt: str = ""
+
+    @classmethod
+    def collect(cls, rows: list[tuple], skipped: Counter, fmt: str, source: str) -> GPSFixes:
+        """Fixes from ``rows`` of ``(utc_s, lat, lon, h, sE, sN, sU, kind)`` in file order.
+
+        Non-finite positions are counted as ``nan_fix``; a time equal to the last kept one as
+        ``duplicate_time``, earlier as ``backwards_time`` (the first record wins).
+        """
+        n_records = len(rows) + sum(skipped.values())
+        if not rows:
+            raise bad_input(
+                source,
+                f"no usable position record ({n_records} read; skipped {dict(skipped)})",
+                "GPS fixes with a solution",
+                "check that the receiver logged positions (NMEA GGA, GPX trkpt, RTKLIB .pos)",
+            )
+        kept: list[tuple] = []
+        last = -math.inf
+        for row in rows:
+            if not all(math.isfinite(v) for v in row[:4]):
+                skipped["nan_fix"] += 1
+            elif row[0] == last:
+                skipped["duplicate_time"] += 1
+            elif row[0] < last:
+                skipped["backwards_time"] += 1
+            else:
+                kept.append(row)
+                last = row[0]
+        if not kept:
+            raise bad_input(source, dict(skipped), "at least one finite fix", "repair the file")
+        a = np.array([r[:7] for r in kept], float)
+        return cls(
+            utc_s=a[:, 0],
+            lat_deg=a[:, 1],
+            lon_deg=a[:, 2],
+            h_m=a[:, 3],
+            sigma=a[:, 4:7],
+            quality=np.array([r[7] for r in kept], dtype=object).astype(str),
+            skipped=skipped,
+            n_records=n_records,
+            fmt=fmt,
+        )
+
+    def subset(self, keep: np.ndarray) -> GPSFixes:
+        """The fixes where ``keep`` is True (counts unchanged)."""
+        return GPSFixes(
+            self.utc_s[keep],
+            self.lat_deg[keep],
+            self.lon_deg[keep],
+            self.h_m[keep],
+            self.sigma[keep],
+            self.quality[keep],
+            self.skipped,
+            self.n_records,
+            self.fmt,
+        )
+
+
+def project_fixes(fixes: GPSFixes, gps_crs: str, map_crs: str) -> np.ndarray:
+    """Projected easting, northing (m) and height (n, 3) of the fixes in ``map_crs``.
+
+    ``gps_crs`` is the geographic CRS of the file (EPSG:4326 / EPSG:4979: WGS 84); the height
+    passes through unchanged. A map CRS that is not projected, or a transform that gives
+    non-finite coordinates (a fix outside the CRS's area), is an InputError.
+    """
+    from pyproj import CRS, Transformer
+    from pyproj.exceptions import CRSError, ProjError
+
+    try:
+        src, dst = CRS.from_user_input(gps_crs), CRS.from_user_input(map_crs)
+    except CRSError as exc:
+        raise bad_input("crs", f"{gps_crs} -> {map_crs}", "CRSs pyproj knows", str(exc)) from exc
+    if not dst.is_projected:
+        raise bad_input(
+            "crs",
+            map_crs,
+            "a projected map CRS (metres east / north)",
+            "give the site's UTM zone or national grid, e.g. crs='EPSG:32608'",
+        )
+    if not src.is_geographic:
+        raise bad_input("gps crs", gps_crs, "a geographic CRS (lat/lon)", "e.g. EPSG:4326")
+    try:
+        tr = Transformer.from_crs(src, dst, always_xy=True)
+        e, n = tr.transform(fixes.lon_deg, fixes.lat_deg, errcheck=False)
+    except ProjError as exc:  # pragma: no cover - PROJ set-up failures
+        raise bad_input("crs", map_crs, "a CRS the GPS can be projected to", str(exc)) from exc
+    e, n = np.asarray(e, float), np.asarray(n, float)
+    bad = ~(np.isfinite(e) & np.isfinite(n))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise bad_input(
+            "crs",
+            f"{map_crs}: fix at lat {fixes.lat_deg[i]:.6f}, lon {fixes.lon_deg[i]:.6f} projects "
+            "to inf",
+            "a map CRS whose area covers the survey",
+            "pick the UTM zone of the site",
+        )
+    return np.column_stack([e, n, fixes.h_m])

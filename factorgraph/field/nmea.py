@@ -1,0 +1,168 @@
+"""NMEA 0183 GPS logs: GGA positions, RMC dates, GST error estimates (``pynmea2``).
+
+* ``GGA`` gives the time of day, latitude / longitude, fix quality, HDOP, altitude above
+  the geoid and the geoid separation; the ellipsoidal height is ``altitude + separation``.
+* ``RMC`` gives the date (GGA has none); without RMC, ``gps.date`` in ``survey.json``.
+  A GGA time of day that falls back by more than 12 h rolls the date over to the next day.
+* ``GST`` (optional) gives the receiver's own 1-sigma of latitude, longitude and altitude
+  (m); when present for a fix it is used instead of the fix quality x HDOP table
+  (:data:`.fixes.UERE_M`).
+
+Counted, not fatal: sentences with a bad or missing checksum (fatal above
+:data:`MAX_BAD_CHECKSUM_FRACTION` of the ``$`` lines: the file is then corrupt, not noisy),
+sentences pynmea2 cannot parse, GGA without a solution (quality 0 or empty position), dead
+reckoning / manual / simulator fixes (quality 6, 7, 8), and the time-order reasons of
+:meth:`.fixes.GPSFixes.collect`.
+"""
+
+from __future__ import annotations
+
+import calendar
+import datetime as dt
+import math
+from collections import Counter
+from pathlib import Path
+
+from terrain.errors import bad_input
+
+from .fixes import UERE_M, GPSFixes, sigma_from_dop
+
+__all__ = ["MAX_BAD_CHECKSUM_FRACTION", "QUALITY", "read_nmea"]
+
+#: Above this fraction of ``$`` lines with a bad checksum the file is refused (a serial
+#: link drops a character now and then; a third of the lines bad is a wrong baud rate).
+MAX_BAD_CHECKSUM_FRACTION = 0.05
+#: GGA fix quality -> solution kind (a key of UERE_M) or the reason the fix is skipped.
+QUALITY = {
+    0: "no_solution",
+    1: "single",
+    2: "dgps",
+    3: "single",  # PPS
+    4: "rtk_fixed",
+    5: "rtk_float",
+    6: "dead_reckoning_fix",
+    7: "manual_input_fix",
+    8: "simulator_fix",
+}
+
+
+def _posix(date: dt.date, tod: dt.time) -> float:
+    whole = calendar.timegm((date.year, date.month, date.day, tod.hour, tod.minute, tod.second))
+    return whole + tod.microsecond * 1e-6
+
+
+def _float(text) -> float:
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def read_nmea(
+    path: str | Path, date: str | None = None, sigma_table: dict[str, float] | None = None
+) -> GPSFixes:
+    """Read an NMEA 0183 log into :class:`.fixes.GPSFixes`.
+
+    Parameters
+    ----------
+    path : path
+        Text file of NMEA sentences, one per line.
+    date : str, optional
+        UTC date ``YYYY-MM-DD`` of the first GGA when the log has no RMC sentences.
+    sigma_table : dict, optional
+        Per-axis 1-sigma at HDOP 1 by solution kind (default :data:`.fixes.UERE_M`).
+    """
+    import pynmea2
+
+    table = {**UERE_M, **(sigma_table or {})}
+    path = Path(path)
+    lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines()]
+    lines = [ln for ln in lines if ln]
+    if not lines:
+        raise bad_input(str(path.name), "an empty file", "NMEA sentences", "log GGA + RMC")
+    skipped: Counter = Counter()
+    n_dollar = 0
+    sentences = []
+    for ln in lines:
+        if not ln.startswith("$"):
+            skipped["not_nmea_line"] += 1
+            continue
+        n_dollar += 1
+        if "*" not in ln:
+            skipped["bad_checksum"] += 1
+            continue
+        try:
+            sentences.append(pynmea2.parse(ln, check=True))
+        except pynmea2.ChecksumError:
+            skipped["bad_checksum"] += 1
+        except pynmea2.ParseError:
+            skipped["unparseable_sentence"] += 1
+    if n_dollar == 0:
+        raise bad_input(str(path.name), lines[0][:40], "NMEA sentences ($..*hh)", "")
+    frac = skipped["bad_checksum"] / n_dollar
+    if frac > MAX_BAD_CHECKSUM_FRACTION:
+        raise bad_input(
+            f"{path.name} checksums",
+            f"{skipped['bad_checksum']} of {n_dollar} sentences ({100 * frac:.1f} %) bad",
+            f"at most {100 * MAX_BAD_CHECKSUM_FRACTION:.0f} % (a corrupt, not a noisy, log)",
+            "check the serial link's baud rate / re-export the log",
+        )
+    gst = {}
+    for s in sentences:
+        if s.sentence_type == "GST" and s.timestamp is not None:
+            sig = (
+                _float(s.std_dev_longitude),
+                _float(s.std_dev_latitude),
+                _float(s.std_dev_altitude),
+            )
+            if all(math.isfinite(v) and v > 0 for v in sig):
+                gst[s.timestamp] = sig
+    day = dt.date.fromisoformat(date) if date else None
+    rows: list[tuple] = []
+    pending: list = []  # GGA before the first date
+    last_tod = None
+    for s in sentences:
+        kind = s.sentence_type
+        if kind == "RMC" and s.datestamp is not None:
+            if day is None or s.datestamp != day:
+                day = s.datestamp
+            if pending:
+                rows.extend(_gga_row(g, day, gst, table, skipped) for g in pending)
+                pending.clear()
+            continue
+        if kind != "GGA":
+            continue
+        if s.timestamp is None:
+            skipped["no_time"] += 1
+            continue
+        if last_tod is not None and day is not None:
+            back = _posix(day, last_tod) - _posix(day, s.timestamp)
+            if back > 12 * 3600:  # midnight without an RMC to say so
+                day = day + dt.timedelta(days=1)
+        last_tod = s.timestamp
+        if day is None:
+            pending.append(s)
+            continue
+        rows.append(_gga_row(s, day, gst, table, skipped))
+    if pending:
+        raise bad_input(
+            f"{path.name} date",
+            f"{len(pending)} GGA sentences and no RMC",
+            "a UTC date: RMC sentences in the log or gps.date in survey.json",
+            'add "gps": {"date": "YYYY-MM-DD"} to survey.json',
+        )
+    return GPSFixes.collect([r for r in rows if r is not None], skipped, "nmea", path.name)
+
+
+def _gga_row(s, day, gst, table, skipped) -> tuple | None:
+    try:
+        q = int(s.gps_qual)
+    except (TypeError, ValueError):
+        q = 0
+    kind = QUALITY.get(q, "unknown_quality_fix")
+    if kind not in table or not s.lat or not s.lon:
+        skipped["no_solution" if (not s.lat or not s.lon) else kind] += 1
+        return None
+    h = _float(s.altitude) + (_float(s.geo_sep) if s.geo_sep not in (None, "") else 0.0)
+    sig = gst.get(s.timestamp) or sigma_from_dop(kind, _float(s.horizontal_dil), None, table)
+    return (_posix(day, s.timestamp), s.latitude, s.longitude, h, *sig, kind)

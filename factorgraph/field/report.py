@@ -1,0 +1,89 @@
+"""What the field reader did with a folder: sources, clock, and everything it skipped."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+__all__ = ["IngestReport"]
+
+
+@dataclass
+class IngestReport:
+    """Counts and choices of one :func:`factorgraph.read_field_log` call (plain JSON values).
+
+    Attributes
+    ----------
+    gps_file, gps_format : str
+        The GPS file read and its format (``nmea``, ``gpx``, ``rtklib``).
+    gps_records : int
+        Position records in the GPS file (used or not).
+    gps_used : int
+        Fixes that became keyframe GPS factors.
+    gps_skipped : dict
+        GPS records not used, by reason (``bad_checksum``, ``no_solution``, ``nan_fix``,
+        ``duplicate_time``, ``backwards_time``, ``gross_outlier``, ``between_keyframes``,
+        ``outside_traverse``, ``extra_fix_same_keyframe``, ...).
+    gps_quality : dict
+        Used fixes by solution kind (``single``, ``dgps``, ``rtk_fixed``, ...).
+    gps_sigma_median_m : list of float
+        Median per-fix 1-sigma (E, N, U) of the used fixes (m).
+    gps_gaps : dict
+        ``count`` of intervals between used fixes longer than ``threshold_s`` (3x the median
+        interval, at least 2 s), the ``longest_s`` and their ``total_s``.
+    clock_offset_s : float
+        ``utc_s - t_rover_s`` applied; ``clock_source`` is ``argument``, ``survey.json`` or
+        ``estimated`` (then ``clock_fit`` holds the course-alignment ``resultant`` and
+        ``contrast``, :mod:`factorgraph.field.clock`).
+    sync_tolerance_s : float
+        Largest gap between a fix and its keyframe.
+    tilt : str
+        ``used``, ``absent`` or ``not used: <reason>``.
+    tracks_skipped : dict
+        Feature observations not used, by reason.
+    camera : str
+        Where the intrinsics came from, and whether tracks were undistorted.
+    lever_arm_m : list of float
+        Antenna position in the body frame (m) that was removed from the fixes.
+    """
+
+    gps_file: str = ""
+    gps_format: str = ""
+    gps_records: int = 0
+    gps_used: int = 0
+    gps_skipped: dict[str, int] = field(default_factory=dict)
+    gps_quality: dict[str, int] = field(default_factory=dict)
+    gps_sigma_median_m: list[float] = field(default_factory=list)
+    gps_gaps: dict[str, float] = field(default_factory=dict)
+    clock_offset_s: float = 0.0
+    clock_source: str = ""
+    clock_fit: dict[str, float] = field(default_factory=dict)
+    sync_tolerance_s: float = 0.0
+    tilt: str = "absent"
+    tracks_skipped: dict[str, int] = field(default_factory=dict)
+    camera: str = ""
+    lever_arm_m: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    @property
+    def n_skipped(self) -> int:
+        """GPS records not used, all reasons."""
+        return int(sum(self.gps_skipped.values()))
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON (recorded in the log's ``ingest`` and its ``meta.json``)."""
+        return asdict(self)
+
+    def lines(self) -> list[str]:
+        """Human-readable summary, one fact per line."""
+        out = [
+            f"GPS {self.gps_file} ({self.gps_format}): {self.gps_used} of {self.gps_records} "
+            f"records used",
+            f"clock offset {self.clock_offset_s:.3f} s ({self.clock_source})",
+        ]
+        out += [f"  skipped {n} GPS records: {r}" for r, n in sorted(self.gps_skipped.items())]
+        if self.gps_gaps.get("count"):
+            g = self.gps_gaps
+            out.append(f"  {g['count']:.0f} GPS gaps, longest {g['longest_s']:.1f} s")
+        out += [f"  skipped {n} observations: {r}" for r, n in sorted(self.tracks_skipped.items())]
+        out.append(f"tilt {self.tilt}; camera {self.camera}")
+        return out
