@@ -157,13 +157,6 @@ class ControlPoints:
             )
         return replace(self, xyz=np.column_stack([xy, self.xyz[:, 2]]), crs=dst.to_string())
 
-    def subset(self, keep: np.ndarray) -> ControlPoints:
-        """Rows ``keep`` (boolean mask or indices)."""
-        return replace(
-            self, ids=self.ids[keep], xyz=self.xyz[keep], sigma=self.sigma[keep],
-            target_id=self.target_id[keep],
-        )  # fmt: skip
-
     def table(self) -> dict[str, np.ndarray]:
         """Columns ``id, x, y, z, sigma_x, sigma_y, sigma_z, target_id`` (what
         :func:`read_control` reads back, with ``crs``)."""
@@ -469,7 +462,9 @@ def add_control_factors(plan: ControlPlan, isam, history, landmarks: set[int]) -
 
 def control_report(plan: ControlPlan, result) -> dict[str, Any]:
     """Which control was used and its residuals (estimate minus control, m, E N U) at the
-    final estimate: per stop point the mean of its stop keyframes, per target its landmark."""
+    final estimate: per stop point the mean of its stop keyframes (and ``online_residual_m``,
+    the online estimate's, made without control: the offset the control removed), per target
+    its landmark."""
     ctrl, used = plan.control, []
     lm_row = {int(j): r for r, j in enumerate(result.landmark_id)}
     for i, name in enumerate(ctrl.ids.tolist()):
@@ -480,7 +475,14 @@ def control_report(plan: ControlPlan, result) -> dict[str, Any]:
         if i in plan.stops:
             ks = plan.stops[i]
             res = result.keyframe_xyz[ks].mean(0) - plan.local_xyz[i]
-            entry.update({"keyframes": ks.tolist(), "stop_residual_m": res.tolist()})
+            before = result.online_xyz[ks].mean(0) - plan.local_xyz[i]  # the filter's, no control
+            entry.update(
+                {
+                    "keyframes": ks.tolist(),
+                    "stop_residual_m": res.tolist(),
+                    "online_residual_m": before.tolist(),
+                }
+            )
         if i in plan.targets and plan.targets[i] in lm_row:
             res = result.landmark_xyz[lm_row[plan.targets[i]]] - plan.local_xyz[i]
             entry.update({"target_id": plan.targets[i], "target_residual_m": res.tolist()})

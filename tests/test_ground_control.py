@@ -169,6 +169,7 @@ def test_stops_fix_the_shared_vertical_offset(controlled):
     assert rep["n_used"] == 2 and rep["unused"] == {} and plain.control == {}
     for entry in rep["used"]:
         assert entry["kind"] == "stop" and np.abs(entry["stop_residual_m"]).max() < 0.1
+        assert len(entry["online_residual_m"]) == 3
 
 
 def test_marginals_with_control_match_gtsam(controlled):
