@@ -23,6 +23,7 @@ from terrain.errors import bad_input
 
 from .control import ControlPoints, add_control_factors, control_report, plan_control
 from .factors import biased_gps_factor, drift_odometry_factor, gauss_markov_factor, gm_transition
+from .field.gate import gate_log
 from .log import MeasurementLog
 from .rebuild import rebuild_isam
 from .result import LocalizationResult
@@ -251,6 +252,7 @@ def localize(
     params = params or LocalizeParams()
     if not isinstance(log, MeasurementLog):
         raise bad_input("log", type(log).__name__, "a MeasurementLog", "use read_log()")
+    log = gate_log(log)  # gross GPS outliers out, counted in log.ingest (field/gate.py)
     ctrl_plan = plan_control(log, control) if control is not None else None  # fail fast
     X, B, L = _keys()
     Dk = gtsam.symbol_shorthand.D
@@ -338,10 +340,12 @@ def localize(
             graph.add(gtsam.AttitudeFactorPose3(X(k), world_up, tilt_noise, gtsam.Unit3(tilt[k])))
         if k in gps_row:
             z = log.gps_xyz[gps_row[k]]
+            # the fix's own sigma when the log has one (fix quality, DOP, solution sigmas)
+            w = white if log.gps_sigma is None else log.gps_sigma[gps_row[k]]
             if bias_model:
-                graph.add(biased_gps_factor(X(k), B(k), z, white))
+                graph.add(biased_gps_factor(X(k), B(k), z, w))
             else:
-                graph.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Diagonal.Sigmas(white)))
+                graph.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Diagonal.Sigmas(w)))
         poses[k] = guess
         if params.use_landmarks:
             idx = order[bounds[k] : bounds[k + 1]]

@@ -8,7 +8,8 @@ File layout (a folder; every table as ``NAME.csv`` or ``NAME.parquet``)
 ---------------------------------------------------------------------
 ``meta.json``
     ``{"format": "glacimap-log/1", "crs": "EPSG:32608", "origin": [E, N], "seed": int|null,
-    "sensors": SensorSuite.to_dict()}``. World coordinates in every table are local ENU metres
+    "sensors": SensorSuite.to_dict()}``, optional ``"ingest"`` (what the field reader
+    skipped, by reason). World coordinates in every table are local ENU metres
     relative to ``origin`` (projected easting/northing) and 0 m elevation.
 ``keyframes``
     ``k, t_s`` (strictly increasing time, s); optional truth ``true_x, true_y, true_z`` (m) and
@@ -20,7 +21,10 @@ File layout (a folder; every table as ``NAME.csv`` or ``NAME.parquet``)
     ``k`` (from keyframe k to k+1), ``rx, ry, rz`` (rotation vector, rad) and ``tx, ty, tz`` (m):
     the measured pose of keyframe k+1 in the body frame of keyframe k.
 ``gps``
-    ``k`` (keyframe of the fix), ``x, y, z`` (antenna = body origin, local ENU m); optional truth
+    ``k`` (keyframe of the fix), ``x, y, z`` (antenna = body origin, local ENU m); optional
+    ``sigma_x, sigma_y, sigma_z``: this fix's own white-noise 1-sigma (m, ENU; from the
+    receiver's fix quality / DOP / solution sigmas, ``factorgraph.field``), used by
+    ``localize`` in place of ``sensors.gps.sigma_white_m``; optional truth
     ``true_bias_x, true_bias_y, true_bias_z`` (m).
 ``observations``
     ``k, landmark_id, u_px, v_px``: a tracked feature seen in keyframe k.
@@ -99,6 +103,10 @@ class MeasurementLog:
         Seed that generated a simulated log.
     control_id : ndarray of shape (K,), str, or None
         Ground-control point the rover stands on at each keyframe ("" for none).
+    gps_sigma : ndarray of shape (G, 3) or None
+        Per-fix white-noise 1-sigma (m, ENU); None: ``sensors.gps.sigma_white_m`` for all.
+    ingest : dict
+        What the field reader skipped, by reason (``IngestReport.as_dict()``); {} otherwise.
     """
 
     t: np.ndarray
@@ -115,6 +123,8 @@ class MeasurementLog:
     truth: dict[str, np.ndarray] = field(default_factory=dict)
     seed: int | None = None
     control_id: np.ndarray | None = None
+    gps_sigma: np.ndarray | None = None
+    ingest: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.t = _arr("keyframes.t_s", self.t, (None,))
@@ -153,6 +163,10 @@ class MeasurementLog:
                 raise bad_input(name, (int(k.min()), int(k.max())), f"indices in [0, {K})", "")
         if self.gps_k.size and (np.diff(self.gps_k) <= 0).any():
             raise bad_input("gps.k", "repeated or unsorted", "one fix per keyframe, sorted", "")
+        if self.gps_sigma is not None:
+            self.gps_sigma = _arr("gps.sigma_xyz", self.gps_sigma, (self.gps_k.size, 3))
+            if not (self.gps_sigma > 0).all():
+                raise bad_input("gps.sigma_x/y/z", "a value <= 0", "sigmas > 0 (m)", "")
         self.origin = _arr("meta.origin", self.origin, (2,))
         self.crs = as_crs(self.crs).to_string()
         self.truth = {k: np.asarray(v) for k, v in self.truth.items()}
@@ -178,6 +192,7 @@ class MeasurementLog:
             "origin": [float(v) for v in self.origin],
             "seed": self.seed,
             "sensors": self.sensors.to_dict(),
+            **({"ingest": self.ingest} if self.ingest else {}),
         }
 
     def tables(self) -> dict[str, dict[str, np.ndarray]]:
@@ -200,6 +215,8 @@ class MeasurementLog:
         )
         gps = {"k": self.gps_k}
         gps.update({a: self.gps_xyz[:, i] for i, a in enumerate("xyz")})
+        if self.gps_sigma is not None:
+            gps.update({f"sigma_{a}": self.gps_sigma[:, i] for i, a in enumerate("xyz")})
         if "gps_bias" in tr:
             gps.update({f"true_bias_{a}": tr["gps_bias"][:, i] for i, a in enumerate("xyz")})
         obs = {
@@ -309,6 +326,8 @@ def read_log(folder: str | Path) -> MeasurementLog:
     if lm is not None:
         truth["landmark_id"] = lm["landmark_id"].to_numpy(int)
         truth["landmark_xyz"] = lm[["true_x", "true_y", "true_z"]].to_numpy(float)
+    sig_cols = ["sigma_x", "sigma_y", "sigma_z"]
+    gps_sigma = gps[sig_cols].to_numpy(float) if set(sig_cols) <= set(gps.columns) else None
     up_cols = ["up_x", "up_y", "up_z"]
     tilt_up = kf[up_cols].to_numpy(float) if set(up_cols) <= set(kf.columns) else None
     control_id = None
@@ -329,6 +348,8 @@ def read_log(folder: str | Path) -> MeasurementLog:
         truth=truth,
         seed=meta.get("seed"),
         control_id=control_id,
+        gps_sigma=gps_sigma,
+        ingest=dict(meta.get("ingest", {})),
     )
 
 
