@@ -332,3 +332,38 @@ def test_netcdf_and_dataarray_dems(grid, truth, centres, tmp_path):
     bare = certify(product["elevation"].assign_attrs(product.attrs), cps)  # a DataArray
     assert bare["calibration"] is None and not bare["dem"]["has_std_band"]
     assert bare["accuracy"]["rmse_m"] == pytest.approx(0.3, abs=1e-12)
+
+
+def test_report_of_a_surveyors_own_certified_geotiff(grid, truth, centres, tmp_path):
+    """Issue 17: `glacimap report` could not draw a DEM certified with `glacimap certify`
+    (it wanted product.nc): it now finds the certified file by the certificate, checks its
+    bytes (sha256) and draws it."""
+    from toolkit.cli import app
+
+    rows, cols, xy = centres
+    tif = _tif(tmp_path / "mine.tif", grid, [truth + 0.3], descriptions=("elevation",))
+    csv = _csv(tmp_path / "cps.csv", xy, truth[rows, cols])
+    out = tmp_path / "cert"
+    out.mkdir()
+    res = CliRunner().invoke(
+        app, ["certify", str(tif), str(csv), "--crs", CRS, "--out", str(out / "certificate.json")]
+    )
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(app, ["report", str(out)])
+    assert res.exit_code == 0, (res.output, res.exception)
+    html = (out / "report.html").read_text()
+    assert "data:image/png;base64," in html
+    assert "0.3" in html  # the RMSE of a constant +0.3 m DEM
+    # the certificate JSON itself as the argument, the report written elsewhere
+    res = CliRunner().invoke(
+        app, ["report", str(out / "certificate.json"), "--out", str(tmp_path / "r.html")]
+    )
+    assert res.exit_code == 0, (res.output, res.exception)
+    assert (tmp_path / "r.html").read_text() == html
+    # a DEM edited after certification is refused, naming the file and the fix
+    _tif(tmp_path / "mine.tif", grid, [truth + 0.5], descriptions=("elevation",))
+    (out / "report.html").unlink()
+    res = CliRunner().invoke(app, ["report", str(out)])
+    assert isinstance(res.exception, InputError), res.output
+    assert "mine.tif" in str(res.exception) and "--dem" in str(res.exception)
+    assert not (out / "report.html").exists()

@@ -338,7 +338,11 @@ def read_dem(dem: Any) -> DemRaster:
     if not path.is_file():
         raise bad_input("DEM", str(path), "an existing GeoTIFF or NetCDF file", "check the path")
     suffix = path.suffix.lower()
-    source = {"name": path.name, "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+    source = {
+        "name": path.name,
+        "path": str(path),  # as given: glacimap report finds the DEM again by it
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+    }
     if suffix in (".tif", ".tiff"):
         return _from_geotiff(path, {"kind": "geotiff", **source})
     if suffix == ".nc":

@@ -68,38 +68,89 @@ def _optional(run_dir: Path) -> dict[str, Any]:
     return out
 
 
+def _certified_dem(run_dir: Path, cert_path: Path, dem: Path | None) -> Path:
+    """The DEM to draw: --dem, else the run's product, else the file the certificate names
+    (``glacimap certify`` of a surveyor's own GeoTIFF), found as given, in RUN_DIR or beside
+    the certificate; a named file must still have the bytes that were certified."""
+    import hashlib
+
+    if dem is not None:
+        if not dem.is_file():
+            raise bad_input("--dem", str(dem), "an existing GeoTIFF or NetCDF DEM", "check it")
+        return dem
+    product = next((run_dir / n for n in RUN_FILES["product"] if (run_dir / n).is_file()), None)
+    if product is not None:
+        return product
+    try:
+        named = json.loads(cert_path.read_text(encoding="utf-8")).get("dem") or {}
+    except (ValueError, AttributeError) as exc:
+        raise bad_input(cert_path.name, str(cert_path), "certificate JSON", str(exc)) from exc
+    name, where = named.get("path") or named.get("name"), []
+    if name:
+        where = [Path(name), run_dir / Path(name).name, cert_path.parent / Path(name).name]
+    found = next((p for p in where if p.is_file()), None)
+    if found is None:
+        names = " or ".join(RUN_FILES["product"])
+        raise bad_input(
+            "RUN_DIR",
+            str(run_dir),
+            f"a folder with {names}, or the certified DEM {name!r} in reach",
+            "pass the certified DEM: glacimap report RUN_DIR --dem DEM.tif",
+        )
+    digest = hashlib.sha256(found.read_bytes()).hexdigest()
+    if named.get("sha256") not in (None, digest):
+        raise bad_input(
+            "DEM",
+            str(found),
+            f"the file certified (sha256 {named['sha256'][:12]}...)",
+            "re-run glacimap certify on this DEM, or pass the certified one with --dem",
+        )
+    return found
+
+
 def report_command(
     run_dir: Annotated[
-        Path, typer.Argument(help="Run folder with certificate.json and product.nc.")
+        Path,
+        typer.Argument(
+            help="Run folder with certificate.json (and product.nc), or a certificate JSON."
+        ),
     ],
     out: Annotated[
         Path | None, typer.Option(help="Output HTML (default RUN_DIR/report.html).")
+    ] = None,
+    dem: Annotated[
+        Path | None,
+        typer.Option(
+            help="The certified DEM (default: the run's product, else the certified file)."
+        ),
     ] = None,
     title: Annotated[str, typer.Option(help="Title of the report.")] = (
         "glacimap accuracy certificate"
     ),
 ) -> None:
     """Rebuild RUN_DIR/report.html, a self-contained HTML accuracy report, from
-    RUN_DIR/certificate.json and the product NetCDF (product.nc, else reconstruction.nc);
-    adds the error map and calibration curve if truth.nc is there, the trajectory from
+    RUN_DIR/certificate.json (or the certificate JSON given as RUN_DIR) and the DEM: --dem,
+    else the product NetCDF (product.nc, reconstruction.nc), else the DEM file the
+    certificate names (a surveyor's own GeoTIFF certified with glacimap certify); adds the
+    error map and calibration curve if truth.nc is there, the trajectory from
     trajectory.npz, coverage metrics from coverage.json and sample locations from samples.csv."""
     from ..report import write_report
 
-    if not run_dir.is_dir():
-        raise bad_input("RUN_DIR", str(run_dir), "an existing folder", "check the path")
-    cert = run_dir / RUN_FILES["certificate"]
+    if run_dir.is_file() and run_dir.suffix.lower() == ".json":
+        cert, run_dir = run_dir, run_dir.parent
+    else:
+        if not run_dir.is_dir():
+            raise bad_input("RUN_DIR", str(run_dir), "an existing folder", "check the path")
+        cert = run_dir / RUN_FILES["certificate"]
     if not cert.is_file():
         fix = f"run glacimap certify DEM CHECKPOINTS --out {cert}"
         raise bad_input("RUN_DIR", str(run_dir), f"a folder with {cert.name}", fix)
-    product = next((run_dir / n for n in RUN_FILES["product"] if (run_dir / n).is_file()), None)
-    if product is None:
-        names = " or ".join(RUN_FILES["product"])
-        raise bad_input("RUN_DIR", str(run_dir), f"a folder with {names}", "add the product")
+    product = _certified_dem(run_dir, cert, dem)
     target = out if out is not None else run_dir / RUN_FILES["report"]
     with console.status("drawing the report..."):
         path = write_report(
             target,
-            product=_open(product),
+            product=product if product.suffix.lower() != ".nc" else _open(product),
             certificate=cert,
             title=title,
             **_optional(run_dir),
