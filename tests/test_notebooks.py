@@ -20,6 +20,7 @@ NOTEBOOKS = (
     "03_reconstruct",
     "04_plan_monte_carlo",
     "05_export_report",
+    "06_change",
 )
 # First-party packages plus the libraries their public API returns or that read the products.
 ALLOWED_IMPORTS = {
