@@ -94,14 +94,17 @@ def outline_weights(grid: Grid, outline: Any) -> np.ndarray:
     return inside * (grid.resolution[0] * grid.resolution[1])
 
 
-def gp_integral(gp: Any, grid: Grid, weights: np.ndarray) -> dict[str, float]:
+def gp_integral(
+    gp: Any, grid: Grid, weights: np.ndarray, subset_max: int = 4000, seed: int = 0
+) -> dict[str, Any]:
     """Posterior variance of ``I = sum_q w_q f(x_q)`` under a fitted exact ``TerrainGP`` and
     the response ``u^T 1`` of the map's estimate of ``I`` to a common offset of its samples.
 
     Parameters
     ----------
     gp : terrain.TerrainGP
-        Fitted with ``method_ == "exact"`` (its Cholesky factor ``L_``); same CRS as ``grid``.
+        Fitted; same CRS as ``grid``. Exact: its Cholesky factor ``L_``. Tiled: an exact GP
+        on at most ``subset_max`` of its samples (seeded), an upper bound (``route`` says).
     grid : Grid
         Cells of ``weights``.
     weights : ndarray of shape grid.shape
@@ -111,16 +114,10 @@ def gp_integral(gp: Any, grid: Grid, weights: np.ndarray) -> dict[str, float]:
     -------
     dict
         ``prior_m6`` (w^T K w), ``explained_m6`` (v^T (K+N)^-1 v), ``mean_coef_m6``,
-        ``posterior_var_m6`` (their combination) and ``offset_response_m2`` (u^T 1).
+        ``posterior_var_m6`` (their combination), ``offset_response_m2`` (u^T 1) and
+        ``route`` (how the factor was obtained).
     """
-    if getattr(gp, "method_", None) != "exact" or getattr(gp, "L_", None) is None:
-        raise bad_input(
-            "models",
-            f"a TerrainGP fitted with method_={getattr(gp, 'method_', None)!r}",
-            "an exact TerrainGP (its Cholesky factor L_)",
-            "fit with method='exact' (or <= exact_max_samples samples), or leave models out "
-            "for the variogram method",
-        )
+    X, L, Wb, cov_b, route = _factor(gp, subset_max, seed)
     W = np.asarray(weights, float)
 
     def cov(lags: np.ndarray) -> np.ndarray:
@@ -132,29 +129,67 @@ def gp_integral(gp: Any, grid: Grid, weights: np.ndarray) -> dict[str, float]:
     sel = W > 0
     q = grid.xy()[sel.ravel()] - gp.X_offset_
     wq = W[sel]
-    X = gp.X_train_
     v = np.empty(X.shape[0])
     step = max(1, 2**24 // max(wq.size, 1))
     for i in range(0, X.shape[0], step):
         v[i : i + step] = gp.kernel_(X[i : i + step], q) @ wq
-    Lv = solve_triangular(gp.L_, v, lower=True, check_finite=False)
-    L1 = solve_triangular(gp.L_, np.ones(v.size), lower=True, check_finite=False)
+    Lv = solve_triangular(L, v, lower=True, check_finite=False)
+    L1 = solve_triangular(L, np.ones(v.size), lower=True, check_finite=False)
     explained = float(Lv @ Lv)
     response = float(L1 @ Lv)
     coef = 0.0
-    cov_b = getattr(gp, "coef_cov_", None)
-    if cov_b is not None and getattr(gp, "W_", None) is not None:
+    if cov_b is not None:
         hq = np.asarray(gp.mean_.basis(q + gp.X_offset_), float)
-        R = wq @ hq - gp.W_.T @ Lv  # R&W Eq 2.42 for the functional
+        R = wq @ hq - Wb.T @ Lv  # R&W Eq 2.42 for the functional
         coef = float(R @ cov_b @ R)
-        response += float((L1 @ gp.W_) @ cov_b @ R)
+        response += float((L1 @ Wb) @ cov_b @ R)
     return {
         "prior_m6": prior,
         "explained_m6": explained,
         "mean_coef_m6": coef,
         "posterior_var_m6": max(prior - explained, 0.0) + coef,
         "offset_response_m2": response,
+        "route": route,
     }
+
+
+def _factor(gp: Any, subset_max: int, seed: int):
+    """(X centred, L, L^-1 H or None, coefficient covariance or None, route) of a fitted GP.
+
+    Exact GP: its own factor. Tiled GP (no global factor): an exact GP at the fitted
+    hyperparameters on a seeded random subset of at most ``subset_max`` samples. A GP's
+    posterior variance only shrinks as data are added, so the subset's integral variance is
+    an upper bound of the full GP's (conservative; its size measured in tests).
+    """
+    from .gp_mean import gls_coefficients, n_coef
+    from .linalg import cholesky_jitter
+
+    if not hasattr(gp, "method_"):
+        raise bad_input("models", "an unfitted TerrainGP", "fitted GPs", "call fit first")
+    if gp.method_ == "exact" and getattr(gp, "L_", None) is not None:
+        return (
+            gp.X_train_,
+            gp.L_,
+            getattr(gp, "W_", None),
+            getattr(gp, "coef_cov_", None),
+            ("exact GP posterior"),
+        )
+    n = gp.X_train_.shape[0]
+    idx = np.arange(n)
+    if n > subset_max:
+        idx = np.sort(np.random.default_rng(seed).choice(n, int(subset_max), replace=False))
+    X = gp.X_train_[idx]
+    noise = gp.z_var_[idx] + gp.nugget_
+    K = gp.kernel_(X)
+    K[np.diag_indices_from(K)] += noise
+    L, _ = cholesky_jitter(K, what="volume_change subset kernel matrix")
+    Wb = cov_b = None
+    if n_coef(gp.mean_):
+        H = np.asarray(gp.mean_.basis(X + gp.X_offset_), float)
+        _, cov_b = gls_coefficients(gp.kernel_, X, gp.y_resid_[idx], noise, H, L)
+        Wb = solve_triangular(L, H, lower=True, check_finite=False)
+    route = f"tiled GP: exact GP on {idx.size} of {n} samples (upper bound)"
+    return X, L, Wb, cov_b, route
 
 
 def _check_density(density: Any) -> tuple[float, float]:
@@ -240,7 +275,7 @@ def volume_change(
     if models is not None:
         method = "gp_posterior"
         for name, gp in zip(("before", "after"), models, strict=True):
-            g = gp_integral(gp, grid, W)
+            g = gp_integral(gp, grid, W, seed=seed)
             budget[f"gp_{name}"] = float(np.sqrt(g["posterior_var_m6"]))
             details[f"gp_{name}"] = g
             if co is None:
