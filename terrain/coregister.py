@@ -309,27 +309,26 @@ def coregister(
     ok = np.isfinite(dh)
     _check_count(int(ok.sum()), source, "with data in both DEMs")
     nmad_before = _nmad(dh[ok])
-    converged, iterations = False, 0
-    for iterations in range(1, int(max_iterations) + 1):  # noqa: B007 (kept after the loop)
+
+    def fit(dh: np.ndarray):
+        """LS of dh on [grad, 1, (tilt)] over finite cells within 4 NMAD of the median."""
         ok = np.isfinite(dh)
         med = np.median(dh[ok])
         keep = ok & (np.abs(dh - med) <= 4 * max(_nmad(dh[ok]), 1e-6))
         _check_count(int(keep.sum()), source, "after rejecting outliers (> 4 NMAD)")
         A = _design(gx1[keep], gy1[keep], d[keep, 0], d[keep, 1], tilt)
-        coef = np.linalg.lstsq(A, dh[keep], rcond=None)[0]
+        return ok, keep, A, np.linalg.lstsq(A, dh[keep], rcond=None)[0]
+
+    converged, iterations = False, 0
+    for iterations in range(1, int(max_iterations) + 1):  # noqa: B007 (kept after the loop)
         # NK Eq 2 in Cartesian form: dem(x + s) - ref(x) = grad(ref) . (s - s_true) + c
-        step = -coef[:2]
+        step = -fit(dh)[3][:2]
         shift = shift + step
         dh = residual(shift)
         if np.hypot(*step) < tolerance_m:
             converged = True
             break
-    ok = np.isfinite(dh)
-    med = np.median(dh[ok])
-    keep = ok & (np.abs(dh - med) <= 4 * max(_nmad(dh[ok]), 1e-6))
-    _check_count(int(keep.sum()), source, "after rejecting outliers (> 4 NMAD)")
-    A = _design(gx1[keep], gy1[keep], d[keep, 0], d[keep, 1], tilt)
-    coef = np.linalg.lstsq(A, dh[keep], rcond=None)[0]
+    ok, keep, A, coef = fit(dh)
     shift = shift - coef[:2]
     params = np.concatenate([shift, coef[2:]])
     sd = _block_bootstrap(A, dh[keep], xy[keep], rg, n_blocks, n_boot, seed)

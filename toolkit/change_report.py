@@ -76,7 +76,7 @@ def write_volume_tables(vc: VolumeChange, json_path: Path, csv_path: Path, **ext
     1-sigma, unit; one row per budget source)."""
     payload = {**vc.to_dict(), **extra}
     with atomic_path(json_path) as tmp:
-        tmp.write_text(json.dumps(payload, indent=2, default=_json_default))
+        tmp.write_text(json.dumps(payload, indent=2, default=lambda o: np.asarray(o).tolist()))
     rows = [
         ("volume_change", vc.volume_m3, vc.volume_std_m3, "m3"),
         ("mean_dh", vc.mean_dh_m, vc.mean_dh_std_m, "m"),
@@ -91,14 +91,6 @@ def write_volume_tables(vc: VolumeChange, json_path: Path, csv_path: Path, **ext
         w = csv.writer(fh)
         w.writerow(["quantity", "value", "std", "unit"])
         w.writerows(rows)
-
-
-def _json_default(o: Any):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 def band_sigma_from(vc: VolumeChange, grid: Grid) -> Callable[[np.ndarray], float] | None:
