@@ -1,0 +1,241 @@
+"""Procedural, seeded glacier surface appearance: albedo and micro-relief slopes.
+
+Everything is a function of the local ENU position (m, the log's frame), so a feature stays
+attached to the snow from one frame to the next. Two layers:
+
+* a site raster (``base_cell_m``, default 0.25 m) over the traverse's bounding box: snow /
+  firn / bare-ice zones from a low-frequency field, dirt cones (dark discs 0.3-1.5 m) and
+  rocks (dark dots); mip-mapped;
+* two periodic detail tiles (FFT-synthesised band-limited noise, 1.5 cm and 6.1 cm texels,
+  rotated against each other so that their product never repeats inside a frame): grain
+  albedo and sastrugi height (anisotropic, elongated across ``wind_azimuth_deg``) whose
+  slopes perturb the shading normal.
+
+Lookups are trilinear in a mip pyramid; the level follows the pixel footprint on the ground,
+which removes the far-field aliasing that otherwise invents features.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from terrain.errors import bad_input
+
+__all__ = ["AlbedoParams", "GlacierAlbedo", "pyramid", "sample_pyramid"]
+
+
+@dataclass(frozen=True)
+class AlbedoParams:
+    """Surface appearance of a scene (albedo in [0, 1], lengths in m)."""
+
+    snow_fraction: float = 0.7  # share of the site under snow; the rest firn / bare ice
+    snow_albedo: float = 0.85
+    firn_albedo: float = 0.65
+    ice_albedo: float = 0.42
+    grain_contrast: float = 0.06  # relative std of the fine grain albedo on snow
+    ice_grain_contrast: float = 0.25  # relative std on bare ice (dirt in the ice)
+    dirt_cones_per_100m2: float = 1.0  # dark debris cones, radius 0.3-1.5 m
+    rocks_per_m2: float = 0.05  # dark stones, radius 3-15 cm
+    sastrugi_height_m: float = 0.015  # std of the wind-ridge micro-relief
+    sastrugi_wavelength_m: float = 0.6  # dominant across-ridge wavelength
+    wind_azimuth_deg: float = 60.0  # ridges run along this azimuth (clockwise from north)
+    base_cell_m: float = 0.25
+
+    def __post_init__(self) -> None:
+        for name in ("snow_fraction", "snow_albedo", "firn_albedo", "ice_albedo"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise bad_input(f"albedo.{name}", v, "a value in [0, 1]", "")
+        for name in ("grain_contrast", "ice_grain_contrast", "dirt_cones_per_100m2"):
+            if not getattr(self, name) >= 0:
+                raise bad_input(f"albedo.{name}", getattr(self, name), "a value >= 0", "")
+        if not (self.base_cell_m > 0 and self.sastrugi_wavelength_m > 0):
+            raise bad_input("albedo.base_cell_m", self.base_cell_m, "a length > 0 (m)", "")
+
+
+def pyramid(img: np.ndarray, periodic: bool, min_size: int = 2) -> list[np.ndarray]:
+    """Mip pyramid (list of float32 arrays): each level the 2 x 2 mean of the previous."""
+    levels = [np.asarray(img, np.float32)]
+    while min(levels[-1].shape[:2]) >= 2 * min_size:
+        a = levels[-1]
+        h, w = a.shape[0] // 2 * 2, a.shape[1] // 2 * 2
+        if not periodic and (h != a.shape[0] or w != a.shape[1]):
+            a = a[:h, :w]
+        a = a[:h, :w]
+        levels.append(0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]))
+    return levels
+
+
+def _bilinear(a: np.ndarray, x: np.ndarray, y: np.ndarray, periodic: bool) -> np.ndarray:
+    """``a`` (h, w[, c]) at fractional texel coordinates (x along columns, y along rows, texel
+    centres at integers); wrapped when ``periodic``, clamped otherwise. OpenCV ``remap``
+    (bilinear, 1/32-texel weights)."""
+    import cv2
+
+    h, w = a.shape[:2]
+    if periodic:  # keep float32 coordinates small; remap wraps the last texel
+        x, y = np.mod(x, w), np.mod(y, h)
+    n = np.size(x)
+    cols = 1024
+    rows = -(-n // cols)
+    mx = np.zeros(rows * cols, np.float32)
+    my = np.zeros(rows * cols, np.float32)
+    mx[:n], my[:n] = np.ravel(x), np.ravel(y)
+    border = cv2.BORDER_WRAP if periodic else cv2.BORDER_REPLICATE
+    if n == 0:
+        return np.zeros((0,) + a.shape[2:], np.float32)
+    out = cv2.remap(
+        a, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=border
+    )
+    out = out.reshape((rows * cols,) + a.shape[2:])[:n]
+    return out
+
+
+def sample_pyramid(
+    levels: list[np.ndarray], x: np.ndarray, y: np.ndarray, lod: np.ndarray, periodic: bool
+) -> np.ndarray:
+    """Trilinear lookup: texel coordinates ``x, y`` (level 0) at level of detail ``lod``
+    (log2 of the footprint in texels, >= 0). Returns (n,) or (n, c)."""
+    lod = np.clip(lod, 0.0, len(levels) - 1.001)
+    l0 = np.floor(lod).astype(np.int64)
+    frac = (lod - l0).astype(np.float32)
+    shape = (x.size,) + levels[0].shape[2:]
+    out = np.empty(shape, np.float32)
+    for lev in np.unique(l0):
+        m = l0 == lev
+        vals = []
+        for j in (lev, lev + 1):
+            s = 0.5**j
+            xs, ys = (x[m] + 0.5) * s - 0.5, (y[m] + 0.5) * s - 0.5
+            vals.append(_bilinear(levels[j], xs, ys, periodic))
+        f = frac[m] if out.ndim == 1 else frac[m][:, None]
+        out[m] = vals[0] * (1 - f) + vals[1] * f
+    return out
+
+
+def _periodic_noise(rng, n, texel, lam_lo, lam_hi, aniso=1.0, azimuth_deg=0.0, beta=2.0):
+    """Band-limited periodic noise tile (n, n), std 1, and its slopes (n, n, 2) per metre.
+
+    Power spectrum ``k^-beta`` between wavelengths ``lam_lo`` and ``lam_hi`` (m), the
+    along-ridge wavenumber stretched by ``aniso`` (ridges longer than wide)."""
+    k = np.fft.fftfreq(n, d=texel)  # cycles / m
+    kx, ky = np.meshgrid(k, k)
+    a = math.radians(azimuth_deg)  # ridge direction (east, north) = (sin a, cos a)
+    along = kx * math.sin(a) + ky * math.cos(a)
+    across = kx * math.cos(a) - ky * math.sin(a)
+    keff = np.hypot(along * aniso, across)
+    band = (keff >= 1.0 / lam_hi) & (keff <= 1.0 / lam_lo)
+    amp = np.where(band, np.maximum(keff, 1e-9) ** (-beta / 2), 0.0)
+    spec = amp * (rng.normal(size=(n, n)) + 1j * rng.normal(size=(n, n)))
+    f = np.fft.ifft2(spec).real
+    sd = f.std() or 1.0
+    # texel (row, col) = (y, x): rows run north here, unlike a north-up DEM
+    gx = np.fft.ifft2(spec * 2j * np.pi * kx).real / sd
+    gy = np.fft.ifft2(spec * 2j * np.pi * ky).real / sd
+    return (f / sd).astype(np.float32), np.stack([gx, gy], -1).astype(np.float32)
+
+
+class GlacierAlbedo:
+    """Seeded glacier appearance over the local rectangle ``bounds`` (west, south, east, north
+    in m, log frame). ``sample(x, y, footprint)`` gives albedo (n,) and micro-relief slopes
+    (n, 2) (dz/dx, dz/dy) at ground points, filtered to ``footprint`` (m per pixel)."""
+
+    TILE = 512
+
+    def __init__(self, bounds, params: AlbedoParams | None = None, rng=None):
+        self.params = p = params or AlbedoParams()
+        rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        w, s, e, n = (float(v) for v in bounds)
+        if not (e > w and n > s):
+            raise bad_input("albedo bounds", bounds, "west < east, south < north", "")
+        cell = max(p.base_cell_m, max(e - w, n - s) / 4096.0)  # at most 4096 cells a side
+        self.cell, self.x0, self.y0 = cell, w, s
+        nx, ny = int(math.ceil((e - w) / cell)) + 1, int(math.ceil((n - s) / cell)) + 1
+        self.base = pyramid(self._base(rng, nx, ny, cell), periodic=False)
+        self.tiles = []
+        for texel, rot in ((0.015, 0.0), (0.061, 37.0)):
+            grain, _ = _periodic_noise(rng, self.TILE, texel, 2 * texel, 40 * texel, beta=1.0)
+            h, slope = _periodic_noise(
+                rng,
+                self.TILE,
+                texel,
+                p.sastrugi_wavelength_m / 4,
+                p.sastrugi_wavelength_m * 3,
+                aniso=4.0,
+                azimuth_deg=p.wind_azimuth_deg - rot,
+            )
+            amp = p.sastrugi_height_m / math.sqrt(2.0)
+            c = np.concatenate([grain[..., None], slope * amp], axis=-1)
+            self.tiles.append((texel, math.radians(rot), pyramid(c, periodic=True)))
+
+    def _base(self, rng, nx, ny, cell) -> np.ndarray:
+        """Zones (snow / firn / ice), dirt cones and rocks on the site raster (ny, nx, 2):
+        albedo and "bare" (0 on snow, 1 on ice: where the fine grain is strong)."""
+        p = self.params
+        from scipy.ndimage import gaussian_filter, map_coordinates
+
+        coarse = 4.0  # zones vary over ~40 m: draw them on a 4 m raster, then upsample
+        cy_, cx_ = int(ny * cell / coarse) + 2, int(nx * cell / coarse) + 2
+        zone = gaussian_filter(rng.normal(size=(cy_, cx_)), 10.0, mode="wrap")
+        zone = map_coordinates(
+            zone, np.mgrid[0:ny, 0:nx] * (cell / coarse), order=1, mode="nearest"
+        )
+        zone = (zone - zone.mean()) / (zone.std() or 1.0)
+        snow_t = float(np.quantile(zone, 1 - p.snow_fraction))
+        ice_t = snow_t - 0.8
+        # smooth transitions over ~0.3 sd: snow above snow_t, firn between, ice below ice_t
+        w_snow = np.clip((zone - snow_t) / 0.3 + 0.5, 0, 1)
+        w_ice = np.clip((ice_t - zone) / 0.3 + 0.5, 0, 1)
+        albedo = w_snow * p.snow_albedo + w_ice * p.ice_albedo
+        albedo += (1 - w_snow - w_ice).clip(0, 1) * p.firn_albedo
+        bare = 1.0 - w_snow
+        area = nx * ny * cell * cell
+        yy, xx = np.mgrid[0:ny, 0:nx]
+        for count, rmin, rmax, dark in (
+            (rng.poisson(p.dirt_cones_per_100m2 * area / 100.0), 0.3, 1.5, 0.18),
+            (rng.poisson(p.rocks_per_m2 * area), 0.03, 0.15, 0.12),
+        ):
+            cx, cy = rng.uniform(0, nx, count), rng.uniform(0, ny, count)
+            r = rng.uniform(rmin, rmax, count) / cell
+            for i in range(count):  # coverage of each disc, anti-aliased over one cell
+                x0, x1 = int(cx[i] - r[i] - 1), int(cx[i] + r[i] + 2)
+                y0, y1 = int(cy[i] - r[i] - 1), int(cy[i] + r[i] + 2)
+                x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, nx), min(y1, ny)
+                if x1 <= x0 or y1 <= y0:
+                    continue
+                d = np.hypot(xx[y0:y1, x0:x1] - cx[i], yy[y0:y1, x0:x1] - cy[i])
+                cover = np.clip(r[i] + 0.5 - d, 0, 1) * (0.3 if r[i] < 0.5 else 1.0)
+                albedo[y0:y1, x0:x1] += cover * (dark - albedo[y0:y1, x0:x1])
+                bare[y0:y1, x0:x1] = np.maximum(bare[y0:y1, x0:x1], cover)
+        return np.stack([albedo, bare], -1)
+
+    def sample(self, x: np.ndarray, y: np.ndarray, footprint: np.ndarray):
+        """Albedo (n,) and micro-relief slopes (n, 2) at local ground points ``x, y`` (m),
+        each filtered over ``footprint`` (m, the pixel's size on the ground)."""
+        p = self.params
+        fp = np.maximum(footprint, 1e-6)
+        base = sample_pyramid(
+            self.base,
+            (x - self.x0) / self.cell,
+            (y - self.y0) / self.cell,
+            np.log2(np.maximum(fp / self.cell, 1.0)),
+            periodic=False,
+        )
+        albedo, bare = base[:, 0], base[:, 1]
+        grain = np.zeros_like(albedo)
+        slope = np.zeros((x.size, 2), np.float32)
+        for texel, rot, levels in self.tiles:
+            c, s = math.cos(rot), math.sin(rot)
+            tx, ty = (c * x + s * y) / texel, (-s * x + c * y) / texel
+            v = sample_pyramid(levels, tx, ty, np.log2(np.maximum(fp / texel, 1.0)), True)
+            grain += v[:, 0]
+            sl = v[:, 1:3]  # slopes in the tile frame -> rotate back to east / north
+            slope[:, 0] += c * sl[:, 0] - s * sl[:, 1]
+            slope[:, 1] += s * sl[:, 0] + c * sl[:, 1]
+        contrast = p.grain_contrast + bare * (p.ice_grain_contrast - p.grain_contrast)
+        albedo = albedo * (1.0 + contrast * grain * 0.7071)
+        slope *= (1.0 - 0.8 * bare)[:, None]  # bare ice is smoother than wind-packed snow
+        return np.clip(albedo, 0.02, 1.0), slope

@@ -1,0 +1,161 @@
+"""Frames on disk: a folder of PNG files plus a timestamps table (format-neutral: any
+camera's images, renamed or not, enter through the table).
+
+Layout (the log folder's ``images/``)
+-------------------------------------
+``timestamps.csv``
+    ``t_s, file`` (s, name relative to the folder); optional ``k`` (keyframe index).
+``*.png``
+    8-bit grayscale (colour is converted), the camera model's width x height.
+
+:func:`read_frames` matches each row to the log's keyframes by time (nearest keyframe within
+``tolerance_s``). Missing, unreadable and wrong-size files, rows that match no keyframe and
+keyframes without a frame are counted by reason (``ImageFolder.skipped``), never fatal; the
+tracker ends its tracks at such a gap.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from terrain.atomic import atomic_path, ensure_writable_dir
+from terrain.errors import bad_input
+
+from ..sensors import CameraModel
+
+__all__ = ["TIMESTAMPS", "ImageFolder", "read_frames", "write_frames"]
+
+TIMESTAMPS = "timestamps.csv"
+
+
+def write_frames(
+    folder: str | Path, frames: Iterable[tuple[int, np.ndarray]], t: np.ndarray
+) -> Iterator[tuple[int, np.ndarray]]:
+    """Write each ``(k, frame)`` of ``frames`` as ``frame_{k:06d}.png`` (atomically) while
+    passing it on (a generator: render, store and track in one pass); the timestamps table
+    (``k, t_s, file``; ``t`` (K,) keyframe times, s) is written when the stream ends."""
+    import cv2
+    import pandas as pd
+
+    out = ensure_writable_dir(folder)
+    rows = []
+    for k, img in frames:
+        name = f"frame_{k:06d}.png"
+        ok, png = cv2.imencode(".png", img)
+        if not ok:
+            raise bad_input("frame", k, "an 8-bit image OpenCV can encode", "")
+        with atomic_path(out / name) as tmp:
+            tmp.write_bytes(png.tobytes())
+        rows.append((k, float(t[k]), name))
+        yield k, img
+    with atomic_path(out / TIMESTAMPS) as tmp:
+        pd.DataFrame(rows, columns=["k", "t_s", "file"]).to_csv(tmp, index=False)
+
+
+class ImageFolder:
+    """Iterable of ``(k, frame or None)`` over a log's keyframes, read lazily from disk.
+
+    Attributes
+    ----------
+    files : dict
+        Keyframe index -> path of its frame.
+    skipped : Counter
+        ``no_matching_keyframe``, ``duplicate_keyframe``, ``missing_file``, ``unreadable``,
+        ``wrong_size``, ``keyframe_without_frame`` (the last three counted while iterating).
+    """
+
+    def __init__(
+        self, files: dict[int, Path], n_keyframes: int, camera: CameraModel | None, skipped: Counter
+    ):
+        self.files, self.n_keyframes = files, n_keyframes
+        self.camera, self.skipped = camera, skipped
+
+    def __len__(self) -> int:
+        return self.n_keyframes
+
+    def __iter__(self) -> Iterator[tuple[int, np.ndarray | None]]:
+        import cv2
+
+        for k in range(self.n_keyframes):
+            path = self.files.get(k)
+            if path is None:
+                self.skipped["keyframe_without_frame"] += 1
+                yield k, None
+                continue
+            if not path.is_file():
+                self.skipped["missing_file"] += 1
+                yield k, None
+                continue
+            img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            if img is None:
+                self.skipped["unreadable"] += 1
+                yield k, None
+                continue
+            cam = self.camera
+            if cam is not None and img.shape != (cam.height_px, cam.width_px):
+                self.skipped["wrong_size"] += 1
+                yield k, None
+                continue
+            yield k, img
+
+
+def read_frames(
+    folder: str | Path,
+    keyframe_t: np.ndarray,
+    camera: CameraModel | None = None,
+    tolerance_s: float | None = None,
+) -> ImageFolder:
+    """Frames of ``folder`` matched to keyframe times ``keyframe_t`` (K,) (s).
+
+    Parameters
+    ----------
+    folder : path
+        Holds ``timestamps.csv`` (``t_s, file``) and the images.
+    keyframe_t : ndarray of shape (K,)
+        The log's keyframe times (s).
+    camera : CameraModel, optional
+        Frames of another size are skipped (counted).
+    tolerance_s : float, optional
+        Largest |frame time - keyframe time|; default a quarter of the smallest keyframe
+        interval.
+    """
+    import pandas as pd
+
+    folder = Path(folder)
+    table = folder / TIMESTAMPS
+    if not table.is_file():
+        raise bad_input(
+            "images",
+            str(folder),
+            f"a folder with {TIMESTAMPS} (t_s, file)",
+            "write the frame times beside the images (factorgraph/vision/camera_frames.py)",
+        )
+    try:
+        df = pd.read_csv(table)
+    except Exception as exc:  # pandas parser errors
+        raise bad_input(TIMESTAMPS, str(exc)[:120], "a CSV table t_s, file", "repair it") from exc
+    missing = [c for c in ("t_s", "file") if c not in df.columns]
+    if missing:
+        raise bad_input(TIMESTAMPS, sorted(df.columns), f"columns {missing} too", "")
+    t = np.asarray(keyframe_t, float)
+    ts = pd.to_numeric(df["t_s"], errors="coerce").to_numpy(float)
+    tol = tolerance_s if tolerance_s is not None else 0.25 * float(np.min(np.diff(t)))
+    skipped: Counter = Counter()
+    skipped["bad_timestamp"] += int((~np.isfinite(ts)).sum())
+    files: dict[int, Path] = {}
+    j = np.clip(np.searchsorted(t, ts), 1, len(t) - 1)
+    near = np.where(np.abs(ts - t[j - 1]) <= np.abs(ts - t[j]), j - 1, j)
+    for i, (k, name) in enumerate(zip(near, df["file"].astype(str), strict=True)):
+        if not np.isfinite(ts[i]):
+            continue
+        if abs(ts[i] - t[k]) > tol:
+            skipped["no_matching_keyframe"] += 1
+        elif int(k) in files:
+            skipped["duplicate_keyframe"] += 1
+        else:
+            files[int(k)] = folder / name
+    return ImageFolder(files, len(t), camera, skipped)
