@@ -120,7 +120,7 @@ def read_nmea(
     day = dt.date.fromisoformat(date) if date else None
     rows: list[tuple] = []
     pending: list = []  # GGA before the first date
-    last_tod = None
+    last_t = None
     for s in sentences:
         kind = s.sentence_type
         if kind == "RMC" and s.datestamp is not None:
@@ -135,15 +135,14 @@ def read_nmea(
         if s.timestamp is None:
             skipped["no_time"] += 1
             continue
-        if last_tod is not None and day is not None:
-            back = _posix(day, last_tod) - _posix(day, s.timestamp)
-            if back > 12 * 3600:  # midnight without an RMC to say so
+        if last_t is not None and day is not None:
+            if last_t - _posix(day, s.timestamp) > 12 * 3600:  # midnight, no RMC to say so
                 day = day + dt.timedelta(days=1)
-        last_tod = s.timestamp
         if day is None:
             pending.append(s)
             continue
         rows.append(_gga_row(s, day, gst, table, skipped))
+        last_t = _posix(day, s.timestamp)
     if pending:
         raise bad_input(
             f"{path.name} date",

@@ -30,7 +30,7 @@ def _table(path: Path, required: tuple[str, ...], alternatives: tuple[str, ...] 
     import pandas as pd
 
     try:
-        df = pd.read_csv(path)
+        df = pd.read_csv(path, float_precision="round_trip")
     except (ValueError, OSError) as exc:  # pandas parser errors are ValueErrors
         raise bad_input(path.name, str(exc)[:120], "a readable CSV table", "repair it") from exc
     df.columns = [str(c).strip() for c in df.columns]
@@ -95,8 +95,7 @@ def read_tilt(path: str | Path, t_kf: np.ndarray, tol_s: float) -> tuple[np.ndar
     missing = int((np.abs(gap) > tol_s).sum())
     if missing:
         return None, f"not used: {missing} keyframes without a reading within {tol_s:g} s"
-    up = a[i, 1:]
-    return up / np.linalg.norm(up, axis=1, keepdims=True), "used"
+    return a[i, 1:], "used"  # MeasurementLog checks and normalises
 
 
 def read_tracks(
