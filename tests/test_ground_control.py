@@ -184,6 +184,21 @@ def test_marginals_with_control_match_gtsam(controlled):
         np.testing.assert_allclose(res.landmark_cov[j], ref, rtol=1e-3, atol=1e-5)
 
 
+def test_shared_offset_with_control_matches_the_joint_marginal(controlled):
+    """Reference: the covariance of the mean world translation error (1/K) sum_k R_k dt_k from
+    gtsam.Marginals' joint marginal of every keyframe pose (stop priors in the graph)."""
+    import gtsam
+
+    res = controlled[1]
+    X, K = gtsam.symbol_shorthand.X, res.log.n_keyframes
+    keys = gtsam.KeyVector([X(k) for k in range(K)])
+    joint = gtsam.Marginals(res.graph, res.estimate).jointMarginalCovariance(keys).fullMatrix()
+    A = np.zeros((3, 6 * K))
+    for k in range(K):
+        A[:, 6 * k + 3 : 6 * k + 6] = res.keyframe_R[k] / K
+    np.testing.assert_allclose(res.shared_offset_cov, A @ joint @ A.T, rtol=1e-4, atol=1e-8)
+
+
 def test_bad_control_names_the_point(short_log):
     log, ctrl, _ = simulate_control(short_log, [0, 120])
     far = dataclasses.replace(ctrl, xyz=ctrl.xyz + [0.0, 5000.0, 0.0])
