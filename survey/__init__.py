@@ -1,8 +1,21 @@
 """Survey planning and certification: plans, coverage metrics, mapping standards, Monte Carlo.
 
-Depends on :mod:`terrain` only (DESIGN.md §2). Paper Sections III-IV, Eq 10-16, Tables I-III.
+``survey`` depends on :mod:`terrain` only (the layout ``toolkit -> {survey, factorgraph} ->
+terrain``). Paper Sections III-IV, Eq 10-16, Tables I-III. The names below are the public
+contract:
+
+* Plans: :class:`SurveyPlan` from :func:`lawnmower` or :func:`piecewise_continuous` over a
+  region (:func:`as_region`), :func:`default_heading`, :func:`path_length`.
+* Coverage metrics (Eq 11-16): :func:`candidate_points`, :func:`centeredness`,
+  :func:`distributedness`, :func:`plan_distributedness`, :func:`robot_centric_coverage`,
+  :func:`science_centric_coverage`.
+* Mapping standards: the module :mod:`survey.standards` (ASPRS 2023 / NMAS / NSSDA
+  accuracy classes and checkpoint rules: ``from survey import standards``).
+* Monte Carlo: :func:`sweep` (:class:`SweepConfig` -> :class:`SweepResult`),
+  :func:`summarize`, :func:`class_limits`.
 """
 
+from . import standards
 from .coverage import (
     candidate_points,
     centeredness,
@@ -35,5 +48,6 @@ __all__ = [
     "robot_centric_coverage",
     "science_centric_coverage",
     "summarize",
+    "standards",
     "sweep",
 ]

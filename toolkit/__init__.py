@@ -1,4 +1,64 @@
-"""The face of glacimap: pipeline, command line, export and report.
+"""The face of glacimap: pipeline, certification, export, report and the command line.
 
-Only ``toolkit`` sees every other package (DESIGN.md §2).
+Only ``toolkit`` sees every other package (the layout ``toolkit -> {survey, factorgraph}
+-> terrain``). The names below are the public contract; most are imported on first use
+(PEP 562), so ``import toolkit`` stays light and a name's own module loads only when asked.
+
+* Pipeline: :func:`run_scenario` (simulate -> localize -> select -> reconstruct -> certify ->
+  export -> report) -> :class:`RunResult`; :func:`load_scenario` reads a scenario TOML.
+* Certification: :func:`certify` a DEM against independent checkpoints
+  (:func:`read_checkpoints`, :class:`Checkpoints`), :func:`write_certificate`.
+* Products: :func:`write_cog`, :func:`write_contours`, :func:`write_mesh`,
+  :func:`write_geojson`; :func:`write_report` (the HTML certificate).
+* Command line: ``glacimap`` (:func:`main`).
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# A public name equal to its submodule's name is imported eagerly: importing the submodule
+# binds ``toolkit.<name>`` to the module, which a lazy ``__getattr__`` would never override.
+from .certify import Checkpoints, certify, read_checkpoints, write_certificate
+
+#: public name -> the module that defines it (imported on first use)
+_WHERE = {
+    "RunResult": "toolkit.pipeline",
+    "run_scenario": "toolkit.pipeline",
+    "load_scenario": "toolkit.config",
+    "write_cog": "toolkit.export",
+    "write_contours": "toolkit.export",
+    "write_geojson": "toolkit.export",
+    "write_mesh": "toolkit.export",
+    "write_report": "toolkit.report",
+    "main": "toolkit.cli",
+}
+
+__all__ = [
+    "Checkpoints",
+    "RunResult",
+    "certify",
+    "load_scenario",
+    "main",
+    "read_checkpoints",
+    "run_scenario",
+    "write_certificate",
+    "write_cog",
+    "write_contours",
+    "write_geojson",
+    "write_mesh",
+    "write_report",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        value = getattr(importlib.import_module(_WHERE[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'toolkit' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
