@@ -226,15 +226,10 @@ def test_read_checkpoints_csv_parquet_sidecar(tmp_path, centres, truth):
 
 def test_missing_z_column_is_named(tmp_path, centres):
     p = tmp_path / "cps.csv"
-    p.write_text("x,y,height\n526100,6475100,100\n")
-    with pytest.raises(InputError, match="missing z"):
+    p.write_text("x,y,hieght\n526100,6475100,100\n")  # a typo: 'height' is an alias of z
+    with pytest.raises(InputError, match="missing z") as exc:
         read_checkpoints(p)
-
-
-def test_different_crs_is_refused(grid, truth, centres):
-    rows, cols, xy = centres
-    with pytest.raises(CRSMismatchError, match="EPSG:32607"):
-        certify(_product(grid, truth), Checkpoints(xy, truth[rows, cols], crs="EPSG:32607"))
+    assert "did you mean 'height'" in str(exc.value)
 
 
 def test_geotiff_matches_dataset_and_needs_crs(grid, truth, centres, tmp_path):

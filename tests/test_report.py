@@ -200,8 +200,14 @@ def test_heldout_block_in_the_certificate(cert, cert_heldout, heldout):
     assert {k: v for k, v in cert_heldout.items() if k != "heldout_calibration"} == cert
     assert block["method"] == "spatial block k-fold" and block["n_folds"] == 5
     assert block["block_size_m"] == heldout.block_size and len(block["folds"]) == 5
-    for key in ("n", "rmse_m", "nlpd", "coverage_68", "coverage_95", "z_mean", "z_std"):
+    for key in ("n", "rmse_m", "nlpd", "coverage_68", "coverage_95", "z_std"):
         assert block[key] == heldout.pooled[key]
+    # one sign in the certificate: z = (map - sample) / sd, the sign of mean_error_m (=
+    # map - sample); terrain.cross_validate's z is (sample - map) / sd
+    assert block["z_mean"] == -heldout.pooled["z_mean"]
+    assert np.sign(block["z_mean"]) == np.sign(block["mean_error_m"])
+    for fold, ref in zip(block["folds"], heldout.to_dict()["folds"], strict=True):
+        assert fold["z_mean"] == -ref["z_mean"] and fold["rmse_m"] == ref["rmse_m"]
     assert block["verdict"] == heldout.verdict() and block["coverage_95"] < 0.9
     assert any("95 % coverage" in v and "too small" in v for v in block["verdict"])
     as_json = json.loads(certificate_json(cert_heldout))["heldout_calibration"]

@@ -6,7 +6,11 @@ verdict per standard (:func:`survey.standards.verdicts`), the calibration of the
 at the checkpoints, what was dropped and why, the seed and the software versions. It holds no
 wall-clock time unless one is passed in: the same inputs give the same bytes.
 
-Errors are ``DEM - checkpoint`` (positive bias: the DEM is too high), metres.
+One sign convention throughout: errors are ``map - checkpoint`` (DEM minus checkpoint,
+metres; a positive bias means the map is too high), and z-scores are that error over its
+1-sigma, ``(map - checkpoint) / sigma`` (a positive mean z: the map is too high as well).
+Checkpoints in another CRS than the DEM (EPSG:4326 included) are reprojected to the DEM's
+with pyproj; the certificate says so.
 """
 
 from __future__ import annotations
@@ -23,7 +27,6 @@ import numpy as np
 from survey import standards
 from terrain.atomic import atomic_path
 from terrain.errors import bad_input
-from terrain.grid import check_same_crs
 from terrain.metrics import interval_coverage, standardized_error_stats
 from terrain.validation import CrossValidation, coverage_verdict
 
@@ -33,6 +36,7 @@ from .certify_io import (
     as_checkpoints,
     read_checkpoints,
     read_dem,
+    reproject_checkpoints,
     sample_bilinear,
 )
 
@@ -42,6 +46,7 @@ __all__ = [
     "Checkpoints",
     "DemRaster",
     "as_checkpoints",
+    "bias_assessment",
     "bootstrap_rmse_ci",
     "certify",
     "certificate_json",
@@ -60,6 +65,8 @@ SCHEMA = "glacimap-certificate/1"
 CONVENTIONAL_INTERVALS_M = (0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 2.5, 5.0, 10.0, 20.0, 25.0, 50.0)
 _PACKAGES = ("glacimap", "numpy", "scipy", "xarray", "rasterio", "pyproj", "gtsam")
 _MAX_ROWS_LISTED = 100  # dropped row indices listed per reason
+#: ASPRS 2014 Sec. 7.2: a mean error above 25 % of the RMSE is a systematic error to report.
+ASPRS_MEAN_ERROR_FRACTION = 0.25
 
 
 # --------------------------------------------------------------------------- statistics
@@ -132,6 +139,46 @@ def _dropped(mask: np.ndarray) -> dict[str, Any]:
     }
 
 
+def bias_assessment(err: np.ndarray) -> dict[str, Any]:
+    """How much of the RMSE is one shared offset: RMSE^2 = bias^2 + SD^2 (SD with 1/n).
+
+    ``err`` (n,) are ``map - checkpoint`` errors, m. The bias is ``significant`` when
+    ``|t| = |bias| / (s / sqrt(n)) > 1.96`` (s with n - 1), ``large`` when ``|bias|`` exceeds
+    :data:`ASPRS_MEAN_ERROR_FRACTION` of the RMSE (ASPRS 2014 Sec. 7.2) and ``dominant`` when
+    it is significant and ``bias^2 > SD^2`` (more than half the mean squared error).
+    ``message`` says it in words (``None`` when the bias is neither large nor dominant).
+    """
+    err = np.asarray(err, dtype=float)
+    n, bias = err.size, float(err.mean())
+    rmse = float(np.sqrt(np.mean(err**2)))
+    sd = float(err.std())  # population SD: rmse^2 = bias^2 + sd^2 exactly
+    se = float(err.std(ddof=1)) / math.sqrt(n) if n > 1 else math.nan
+    t = bias / se if se > 0 else (math.inf if bias and n > 1 else math.nan)
+    frac = abs(bias) / rmse if rmse > 0 else 0.0
+    significant = bool(n > 1 and abs(t) > 1.96)
+    large = significant and frac > ASPRS_MEAN_ERROR_FRACTION
+    dominant = significant and bias**2 > sd**2
+    message = (
+        f"{'the bias dominates the error' if dominant else 'a systematic bias'}: the map is "
+        f"{abs(bias):.2f} m {'above' if bias > 0 else 'below'} the checkpoints on average, "
+        f"{100 * frac:.0f} % of the RMSE ({100 * frac**2:.0f} % of the mean squared error; "
+        f"ASPRS 2014 expects under {100 * ASPRS_MEAN_ERROR_FRACTION:.0f} %). Without it the "
+        f"RMSE would be {sd:.2f} m. The verdicts are on the RMSE with the bias in it; a shared "
+        "vertical offset is removed by ground control or a datum shift, not by more survey."
+    )
+    return {
+        "bias_m": bias,
+        "rmse_without_bias_m": sd,
+        "fraction_of_rmse": frac,
+        "share_of_mse": frac**2,
+        "t_statistic": t,
+        "significant": significant,
+        "exceeds_asprs_mean_error": large,
+        "dominant": dominant,
+        "message": message if large or dominant else None,
+    }
+
+
 # --------------------------------------------------------------------------- certify
 def certify(
     dem: Any,
@@ -154,8 +201,9 @@ def certify(
         Terrain product (``elevation``, optional ``elevation_std``, m), truth DEM, GeoTIFF
         or NetCDF path; see :func:`read_dem`.
     checkpoints : Checkpoints, path-like, mapping or DataFrame
-        Independent check points in the DEM's CRS: a file (:func:`read_checkpoints`) or a
-        table with columns ``x, y, z[, z_std, crs]`` (:func:`as_checkpoints`).
+        Independent check points: a file (:func:`read_checkpoints`) or a table with columns
+        ``x, y, z[, z_std, crs]`` or their aliases (:func:`as_checkpoints`), in any CRS
+        pyproj knows (reprojected to the DEM's; heights must be in the DEM's vertical datum).
     contour_interval_m : float, optional
         Interval to certify (m). Default: the finest interval ASPRS 1990 Class 1 allows
         (CI = 3 RMSE_z for contours), rounded up to :data:`CONVENTIONAL_INTERVALS_M`.
@@ -186,7 +234,7 @@ def certify(
     terrain.errors.InputError
         Bad DEM / checkpoints / parameters, or no checkpoint on valid DEM cells.
     terrain.errors.CRSMismatchError
-        Checkpoints and DEM in different CRSs.
+        The ``crs`` argument and the checkpoint file name different CRSs.
     """
     if not isinstance(feature, str) or feature not in ("contour", "spot"):
         raise bad_input("feature", feature, "'contour' or 'spot'", "ASPRS 1990 feature type")
@@ -198,13 +246,13 @@ def certify(
     heldout_cal = None if heldout is None else heldout_block(heldout)  # fail before any work
     raster = read_dem(dem)
     cps = as_checkpoints(checkpoints, crs)
-    check_same_crs(cps.crs, raster.grid.crs, f"checkpoints ({cps.source})", "DEM")
-
     nan = cps.nan_rows()
-    xy = np.where(nan[:, None], 0.0, cps.xy)
-    outside = ~nan & ~raster.grid.contains(xy)
+    xy, reprojected = reproject_checkpoints(cps, raster.grid.crs, nan)
+    unprojectable = ~nan & ~np.isfinite(xy).all(axis=1)
+    xy[unprojectable] = 0.0
+    outside = ~nan & ~unprojectable & ~raster.grid.contains(xy)
     dem_z = np.full(cps.n, np.nan)
-    cand = ~nan & ~outside
+    cand = ~nan & ~unprojectable & ~outside
     dem_z[cand] = sample_bilinear(raster.grid, raster.elevation, xy[cand])
     nodata = cand & ~np.isfinite(dem_z)
     used = cand & ~nodata
@@ -212,8 +260,8 @@ def certify(
     if n == 0:
         raise bad_input(
             "checkpoints",
-            f"0 of {cps.n} usable ({int(nan.sum())} NaN, {int(outside.sum())} outside the "
-            f"DEM, {int(nodata.sum())} on nodata)",
+            f"0 of {cps.n} usable ({int(nan.sum())} NaN, {int(unprojectable.sum())} not "
+            f"projectable, {int(outside.sum())} outside the DEM, {int(nodata.sum())} on nodata)",
             "checkpoints on valid DEM cells",
             "check the CRS and the extent of both files",
         )
@@ -222,7 +270,7 @@ def certify(
     lo, hi = bootstrap_rmse_ci(err, n_boot=n_boot, seed=seed)
     accuracy = {
         "n": n,
-        "error_definition": "DEM minus checkpoint, m",
+        "error_definition": "map minus checkpoint (DEM - checkpoint), m: positive = map high",
         "rmse_m": rmse,
         "rmse_ci95_m": [lo, hi],
         "bias_m": float(err.mean()),
@@ -232,6 +280,7 @@ def certify(
         "p95_abs_error_m": float(np.percentile(np.abs(err), 95)),
         "accuracy_95_m": standards.accuracy_95(rmse, "nssda"),
         "rmse_with_checkpoint_error_m": standards.combined_rmse_with_checkpoints(rmse, cp_rmse),
+        "bias_assessment": bias_assessment(err),
     }
 
     finest = {
@@ -249,6 +298,10 @@ def certify(
     verdicts = standards.verdicts(
         rmse, ci, cp_rmse, n_checkpoints=n, feature=feature, area_km2=area_km2
     )
+    if accuracy["bias_assessment"]["message"]:
+        frac = accuracy["bias_assessment"]["fraction_of_rmse"]
+        for v in verdicts:  # a pass on the RMSE says nothing of where the error comes from
+            v["notes"] = [*v["notes"], f"bias {accuracy['bias_m']:+.2f} m is {frac:.0%} of RMSE"]
 
     calibration = None
     if raster.elevation_std is not None:
@@ -258,13 +311,14 @@ def certify(
         ok = np.isfinite(std)
         if ok.any():
             pred, truth, s = dem_z[used][ok], cps.z[used][ok], std[ok]
-            z_mean, z_std = standardized_error_stats(pred, s, truth)
+            z_mean, z_std = standardized_error_stats(truth, s, pred)  # (map - checkpoint) / s
             calibration = {
                 "n": int(ok.sum()),
                 "sigma": "elevation_std"
                 + (" (+) checkpoint z_std" if cps.z_std is not None else ""),
                 "coverage_68": interval_coverage(pred, s, truth, z=1.0),
                 "coverage_95": interval_coverage(pred, s, truth, z=1.96),
+                "z_definition": "(map - checkpoint) / sigma, the sign of bias_m",
                 "z_mean": z_mean,
                 "z_std": z_std,
                 "mean_sigma_m": float(s.mean()),
@@ -281,6 +335,7 @@ def certify(
             "bounds": list(g.bounds),
             "area_km2": area_km2,
             "has_std_band": raster.elevation_std is not None,
+            "vertical_datum": raster.provenance.get("vertical_datum", "not stated by the DEM"),
             "provenance": raster.provenance,
         },
         "checkpoints": {
@@ -288,11 +343,15 @@ def certify(
             "sha256": cps.sha256,
             "crs": None if cps.crs is None else cps.crs.to_string(),
             "crs_note": None if cps.crs is not None else "none given: assumed the DEM's",
+            "reprojected": reprojected,
+            "columns": cps.columns,
+            "ignored_columns": list(cps.ignored_columns),
             "n_total": cps.n,
             "n_used": n,
             "n_dropped": cps.n - n,
             "dropped": {
                 "nan_values": _dropped(nan),
+                "not_projectable": _dropped(unprojectable),
                 "outside_dem": _dropped(outside),
                 "nodata": _dropped(nodata),
             },
@@ -309,6 +368,7 @@ def certify(
         "accuracy": accuracy,
         "contour_interval": {"certified_m": ci, "how": how, "finest_m": finest},
         "verdicts": verdicts,
+        "warnings": [m for m in (accuracy["bias_assessment"]["message"],) if m],
         "calibration": calibration,
         "error_histogram": {"edges_m": edges, "counts": counts},
         "seed": int(seed),
@@ -333,6 +393,7 @@ _HELDOUT_SCORES = (
     "z_std",
     "mean_sd_m",
 )
+_Z_DEFINITION = "(map - held-out sample) / sd, the sign of mean_error_m"
 
 
 def heldout_block(
@@ -354,9 +415,10 @@ def heldout_block(
     dict
         JSON-ready: ``method`` ("spatial block k-fold"), ``block_size_m``, ``n_folds``,
         ``n_blocks``, ``seed``, ``refit``, ``predictive``; pooled ``n, rmse_m, mean_error_m
-        (map - held-out sample), nlpd, coverage_68, coverage_95`` (fractions), ``z_mean,
-        z_std, mean_sd_m``; ``calibration`` (levels, observed); ``folds`` (one row each);
-        ``tolerance_points`` and ``verdict`` (sentences, empty when both coverages are in).
+        (map - held-out sample), nlpd, coverage_68, coverage_95`` (fractions), ``z_mean``
+        (of ``(map - sample) / sd``, the sign of ``mean_error_m``), ``z_std, mean_sd_m``;
+        ``calibration`` (levels, observed); ``folds`` (one row each); ``tolerance_points``
+        and ``verdict`` (sentences, empty when both coverages are in).
 
     Raises
     ------
@@ -371,9 +433,14 @@ def heldout_block(
     missing = [k for k in _HELDOUT_SCORES if not isinstance(pooled, Mapping) or k not in pooled]
     if missing:
         raise bad_input("heldout", f"no pooled {missing}", "CrossValidation.to_dict()", fix)
+    # cross_validate's z is (sample - map) / sd; here (map - sample) / sd, like mean_error_m
+    sign = 1.0 if d.get("z_definition") == _Z_DEFINITION else -1.0
+    scores = [{k: row.get(k) for k in _HELDOUT_SCORES} for row in (pooled, *(d.get("folds") or []))]
+    for row in scores:
+        row["z_mean"] = None if row["z_mean"] is None else sign * row["z_mean"]
     folds = [
-        {k: row.get(k) for k in ("fold", "n_train", "n_blocks", *_HELDOUT_SCORES)}
-        for row in d.get("folds") or []
+        {**{k: row.get(k) for k in ("fold", "n_train", "n_blocks")}, **sc}
+        for row, sc in zip(d.get("folds") or [], scores[1:], strict=True)
     ]
     block = {
         "method": "spatial block k-fold",
@@ -385,7 +452,8 @@ def heldout_block(
         "refit": d.get("refit"),
         "predictive": d.get("predictive"),
         "hyperparameters": d.get("hyperparameters"),
-        **{k: pooled[k] for k in _HELDOUT_SCORES},
+        **scores[0],
+        "z_definition": _Z_DEFINITION,
         "calibration": pooled.get("calibration"),
         "folds": folds,
         "tolerance_points": float(tolerance_points),

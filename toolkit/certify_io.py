@@ -1,7 +1,9 @@
 """Inputs of the accuracy certificate: checkpoint tables and DEMs (used by :mod:`toolkit.certify`).
 
-- :func:`read_checkpoints` — CSV / Parquet checkpoints with x, y, z[, z_std, crs] (metres);
+- :func:`read_checkpoints` — CSV / Parquet checkpoints with x, y, z[, z_std, crs] (metres),
+  header aliases in :data:`COLUMN_ALIASES`, coordinates in any CRS pyproj knows;
   :func:`as_checkpoints` also takes a mapping / DataFrame of those columns.
+- :func:`reproject_checkpoints` — checkpoint coordinates in the DEM's CRS (pyproj).
 - :func:`read_dem` — a terrain product Dataset, a truth DataArray, a GeoTIFF or a NetCDF file.
 - :func:`sample_bilinear` — strict bilinear sampling between cell centres (NaN near nodata).
 """
@@ -9,10 +11,12 @@
 from __future__ import annotations
 
 import csv
+import difflib
 import hashlib
 import json
 import math
 import os
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -22,18 +26,31 @@ from pyproj import CRS
 
 from terrain import Grid
 from terrain.errors import bad_input
-from terrain.grid import as_crs, check_same_crs
+from terrain.grid import check_same_crs
 
 __all__ = [
+    "COLUMN_ALIASES",
     "Checkpoints",
     "DemRaster",
     "as_checkpoints",
     "read_checkpoints",
     "read_dem",
+    "reproject_checkpoints",
     "sample_bilinear",
 ]
 
 _COLUMNS = ("x", "y", "z")
+#: Header names read as each column (case-insensitive; a unit suffix ``_m``, `` (m)`` or
+#: ``[m]`` is ignored). ``x`` is always the east coordinate: longitude in a geographic CRS.
+COLUMN_ALIASES: dict[str, tuple[str, ...]] = {
+    "x": ("x", "easting", "east", "e", "lon", "long", "longitude"),
+    "y": ("y", "northing", "north", "n", "lat", "latitude"),
+    "z": ("z", "elevation", "elev", "height", "h", "altitude", "alt"),
+    "z_std": ("z_std", "sigma_z", "z_sigma", "std_z", "sd_z", "z_sd", "sigma", "std", "sd"),
+    "crs": ("crs", "srs"),
+}
+_ALIAS = {a: c for c, names in COLUMN_ALIASES.items() for a in names}
+_ALIAS_TEXT = "; ".join(f"{c}: {'/'.join(names)}" for c, names in COLUMN_ALIASES.items())
 _GEOREF = frozenset({"crs", "crs_wkt", "transform", "resolution"})
 
 
@@ -51,10 +68,15 @@ class Checkpoints:
     z_std : ndarray of shape (n,) or None
         1-sigma of each surveyed elevation, metres, when the file has a ``z_std`` column.
     crs : pyproj.CRS or None
-        Projected CRS of ``xy`` (anything pyproj understands is converted); None when the
-        file, a sidecar and the caller name none.
+        CRS of ``xy``, projected or geographic (anything pyproj understands is converted;
+        :func:`toolkit.certify.certify` reprojects to the DEM's); None when the file, a
+        sidecar and the caller name none.
     source : str
         File name (or ``"arrays"``); ``sha256`` of the file's bytes when read from one.
+    columns : dict of str
+        Which header became which column (``{"x": "easting", ...}``) when read from a table.
+    ignored_columns : tuple of str
+        Headers that are none of :data:`COLUMN_ALIASES` (ids, notes): kept out, listed.
     """
 
     xy: np.ndarray
@@ -63,6 +85,8 @@ class Checkpoints:
     crs: CRS | None = None
     source: str = "arrays"
     sha256: str | None = None
+    columns: dict[str, str] = field(default_factory=dict)
+    ignored_columns: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         xy = np.asarray(self.xy, dtype=float)
@@ -78,7 +102,7 @@ class Checkpoints:
         object.__setattr__(self, "z", z)
         object.__setattr__(self, "z_std", z_std)
         if self.crs is not None:
-            object.__setattr__(self, "crs", as_crs(self.crs, "checkpoints.crs"))
+            object.__setattr__(self, "crs", any_crs(self.crs, "checkpoints.crs"))
 
     @property
     def n(self) -> int:
@@ -91,6 +115,57 @@ class Checkpoints:
         if self.z_std is not None:
             cols.append(self.z_std)
         return ~np.logical_and.reduce([np.isfinite(c) for c in cols])
+
+
+def any_crs(value: Any, field_name: str) -> CRS:
+    """A CRS from anything pyproj understands, projected or geographic."""
+    try:
+        return CRS.from_user_input(value)
+    except Exception as exc:  # pyproj's CRSError
+        raise bad_input(field_name, value, "a CRS pyproj understands", "e.g. EPSG:4326") from exc
+
+
+def _header_key(name: str) -> str:
+    key = re.sub(r"\s*[\(\[][^\)\]]*[\)\]]\s*$", "", str(name).strip().lower())
+    key = re.sub(r"[\s\-]+", "_", key)
+    return key[:-2] if key.endswith("_m") and key[:-2] in _ALIAS else key
+
+
+def _canonical(cols: dict[str, Any], name: str) -> tuple[dict[str, Any], dict[str, str], list]:
+    """Rename the headers of ``cols`` by :data:`COLUMN_ALIASES`; unknown ones are returned
+    apart; a column named twice (``z`` and ``elevation``) is an error; a missing x, y or z
+    names the closest unknown header (difflib) as the fix."""
+    out: dict[str, Any] = {}
+    used: dict[str, str] = {}
+    unknown = []
+    for header, values in cols.items():
+        canon = _ALIAS.get(_header_key(header))
+        if canon is None:
+            unknown.append(header)
+        elif canon in out:
+            raise bad_input(
+                f"{name} columns",
+                [used[canon], header],
+                f"one column for {canon}",
+                f"drop or rename one of {used[canon]!r}, {header!r}",
+            )
+        else:
+            out[canon], used[canon] = values, header
+    missing = [c for c in _COLUMNS if c not in out]
+    if missing:
+        hints = []
+        for header in unknown:
+            close = difflib.get_close_matches(_header_key(header), list(_ALIAS), n=1, cutoff=0.6)
+            if close:
+                hints.append(f"{header!r} -> did you mean {close[0]!r} ({_ALIAS[close[0]]})?")
+        raise bad_input(
+            f"{name} columns",
+            list(cols),
+            f"columns x, y, z[, z_std, crs]; missing {', '.join(missing)} (headers read as "
+            f"{_ALIAS_TEXT})",
+            "; ".join(hints) or "rename the header (x, y: easting/northing; z: elevation, m)",
+        )
+    return out, used, unknown
 
 
 def _float(text: Any, where: str) -> float:
@@ -111,11 +186,11 @@ def _table(path: Path) -> dict[str, list[Any]]:
             table = pq.read_table(path)
         except Exception as exc:  # pyarrow raises ArrowInvalid / OSError subclasses
             raise bad_input("CHECKPOINTS", path.name, "a Parquet table", str(exc)) from exc
-        return {n.strip().lower(): table.column(n).to_pylist() for n in table.column_names}
+        return {n.strip(): table.column(n).to_pylist() for n in table.column_names}
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.reader(fh)
-            header = [h.strip().lower() for h in next(reader, [])]
+            header = [h.strip() for h in next(reader, [])]
             rows = [r for r in reader if any(c.strip() for c in r)]
     except (OSError, UnicodeDecodeError) as exc:
         raise bad_input("CHECKPOINTS", path.name, "a readable UTF-8 CSV", str(exc)) from exc
@@ -157,26 +232,23 @@ def _column(values: Any, where: str) -> np.ndarray:
 def _from_columns(
     cols: dict[str, Any], name: str, crs: Any, path: Path | None, sha256: str | None
 ) -> Checkpoints:
-    missing = [c for c in _COLUMNS if c not in cols]
-    if missing:
-        raise bad_input(
-            f"{name} columns",
-            sorted(cols),
-            f"columns x, y, z[, z_std, crs]; missing {', '.join(missing)}",
-            "rename the header (x, y: easting/northing m; z: elevation m)",
-        )
-    arr = {c: _column(cols[c], f"{name} column {c}") for c in (*_COLUMNS, "z_std") if c in cols}
+    cols, used, unknown = _canonical(cols, name)
+    arr = {
+        c: _column(cols[c], f"{name} column {used[c]}") for c in (*_COLUMNS, "z_std") if c in cols
+    }
     found = _file_crs(path, cols)
-    resolved = None if crs is None else as_crs(crs, "crs")
+    resolved = None if crs is None else any_crs(crs, "crs")
     if found is not None:
-        file_crs = as_crs(found[0], f"{name} {found[1]}")
+        file_crs = any_crs(found[0], f"{name} {found[1]}")
         check_same_crs(resolved, file_crs, "crs argument", f"{name} ({found[1]})")
         resolved = file_crs
     n = {k: v.size for k, v in arr.items()}
     if len(set(n.values())) > 1:
         raise bad_input(f"{name} columns", n, "columns of one length", "check the table")
     xy = np.column_stack([arr["x"], arr["y"]]).reshape(-1, 2)
-    return Checkpoints(xy, arr["z"], arr.get("z_std"), resolved, name, sha256)
+    return Checkpoints(
+        xy, arr["z"], arr.get("z_std"), resolved, name, sha256, used, tuple(map(str, unknown))
+    )
 
 
 def read_checkpoints(path: str | os.PathLike, crs: Any = None) -> Checkpoints:
@@ -185,19 +257,22 @@ def read_checkpoints(path: str | os.PathLike, crs: Any = None) -> Checkpoints:
     Parameters
     ----------
     path : path-like
-        Columns ``x, y, z`` (easting, northing, elevation; metres in a projected CRS) and
-        optionally ``z_std`` (1-sigma, m) and ``crs``; names are case-insensitive. Empty cells
-        become NaN: such rows are kept and reported as dropped by :func:`certify`.
+        Columns ``x, y, z`` (east, north, elevation: metres in a projected CRS, or degrees of
+        longitude, latitude and metres in a geographic one) and optionally ``z_std`` (1-sigma,
+        m) and ``crs``; case-insensitive, with the aliases of :data:`COLUMN_ALIASES`
+        (``easting, northing, elevation`` ...). Other columns (ids, notes) are listed in
+        ``ignored_columns``. Empty cells become NaN: such rows are kept and reported as
+        dropped by :func:`certify`.
     crs : str or pyproj.CRS, optional
-        CRS of the coordinates. Also read from a ``crs`` column or a sidecar file
-        ``<stem>.crs`` (e.g. ``EPSG:32608``) or ``<stem>.prj`` (WKT); all that are given must
-        agree.
+        CRS of the coordinates, any that pyproj knows (EPSG:4326 included). Also read from a
+        ``crs`` column or a sidecar file ``<stem>.crs`` (e.g. ``EPSG:32608``) or ``<stem>.prj``
+        (WKT); all that are given must agree.
 
     Raises
     ------
     terrain.errors.InputError
-        Missing file or columns (named), a non-numeric cell, a negative ``z_std``, a
-        geographic CRS.
+        Missing file or columns (named, with a did-you-mean), a column given twice, a
+        non-numeric cell, a negative ``z_std``, a CRS pyproj does not know.
     terrain.errors.CRSMismatchError
         The ``crs`` argument and the file's CRS differ.
     """
@@ -213,16 +288,41 @@ def as_checkpoints(obj: Any, crs: Any = None) -> Checkpoints:
     a mapping or DataFrame with columns ``x, y, z[, z_std, crs]`` (m). ``crs`` fills in a CRS
     the input does not name and must agree with one it names."""
     if isinstance(obj, Checkpoints):
-        check_same_crs(None if crs is None else as_crs(crs), obj.crs, "crs argument", "checkpoints")
+        given = None if crs is None else any_crs(crs, "crs")
+        check_same_crs(given, obj.crs, "crs argument", "checkpoints")
         return obj if obj.crs is not None or crs is None else replace(obj, crs=crs)
     if isinstance(obj, str | os.PathLike):
         return read_checkpoints(obj, crs)
     try:
-        cols = {str(k).strip().lower(): obj[k] for k in obj.keys()}
+        cols = {str(k).strip(): obj[k] for k in obj.keys()}
     except (AttributeError, TypeError, KeyError) as exc:
         expected = "Checkpoints, a CSV/Parquet path or a table with x, y, z"
         raise bad_input("checkpoints", type(obj).__name__, expected, "") from exc
     return _from_columns(cols, "checkpoints", crs, None, None)
+
+
+def reproject_checkpoints(
+    cps: Checkpoints, crs: CRS, nan: np.ndarray
+) -> tuple[np.ndarray, dict[str, str] | None]:
+    """Checkpoint x, y in ``crs`` (the DEM's), shape (n, 2), 0 on the ``nan`` rows (n,), and
+    the record of the transformation (``None`` when already in it). pyproj, x = east
+    (longitude) first; heights are not transformed (they must share the DEM's vertical
+    datum); a point pyproj cannot transform comes back non-finite (counted by ``certify``)."""
+    xy = np.where(nan[:, None], 0.0, cps.xy)
+    if cps.crs is None or cps.crs.equals(crs, ignore_axis_order=True):
+        return xy, None
+    from pyproj import Transformer, __version__
+
+    tr = Transformer.from_crs(cps.crs, crs, always_xy=True)
+    ex, ny = tr.transform(xy[:, 0], xy[:, 1], errcheck=False)
+    out = np.where(nan[:, None], 0.0, np.column_stack([ex, ny]))
+    note = {
+        "from": cps.crs.to_string(),
+        "to": crs.to_string(),
+        "how": f"pyproj {__version__} Transformer, x = east (longitude) first; heights as given",
+        "operation": tr.description,
+    }
+    return out, note
 
 
 # --------------------------------------------------------------------------- the DEM

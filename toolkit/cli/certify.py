@@ -7,6 +7,7 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 console = Console()
@@ -24,9 +25,14 @@ def print_certificate(cert: dict[str, Any]) -> None:
     console.print(
         f"RMSE_z {acc['rmse_m']:.3f} m [95 % CI {lo:.3f}, {hi:.3f}] from {cps['n_used']} of "
         f"{cps['n_total']} checkpoints (dropped: {dropped}); bias {acc['bias_m']:+.3f} m, "
-        f"NSSDA Accuracy_z {acc['accuracy_95_m']:.3f} m; contour interval "
+        f"(map - checkpoint), NSSDA Accuracy_z {acc['accuracy_95_m']:.3f} m; contour interval "
         f"{ci['certified_m']:g} m ({ci['how']}); seed {cert['seed']}"
     )
+    for warning in cert.get("warnings") or []:
+        console.print(f"[bold yellow]warning:[/] {escape(warning)}", highlight=False)
+    moved = cert["checkpoints"].get("reprojected")
+    if moved:
+        console.print(f"checkpoints reprojected from {moved['from']} to {moved['to']} (pyproj)")
     cal = cert.get("calibration")
     if cal:
         console.print(
@@ -54,7 +60,11 @@ def certify_command(
         Path, typer.Argument(help="DEM: GeoTIFF (band 1 elevation) or NetCDF terrain product.")
     ],
     checkpoints: Annotated[
-        Path, typer.Argument(help="CSV or Parquet with x, y, z[, z_std, crs] (metres).")
+        Path,
+        typer.Argument(
+            help="CSV or Parquet with x, y, z[, z_std, crs] (or easting, northing, elevation, "
+            "lon, lat, h, sigma_z ...), any CRS: reprojected to the DEM's."
+        ),
     ],
     out: Annotated[Path | None, typer.Option(help="Write the certificate JSON here.")] = None,
     contour_interval: Annotated[
