@@ -19,6 +19,9 @@ stream, ``factorgraph.control_sim``):
     Only the first and last stop (2 points, both ends of the traverse in time).
 ``stops8``
     A stop at every turn of the lawnmower (its 8 waypoints: both ends of every swath).
+``targets4``
+    No stops: 4 marked targets 6 m outside the path's corners, tracked by the camera, with a
+    2 cm prior on their landmarks (``factorgraph.control_sim.simulate_targets``).
 
 Scores. Landmarks (all in the graph): mean and RMS of the vertical error against the truth,
 its NEES ``mean(e_z^2 / Sigma_zz)`` (1 when the stated 1-sigma is right); keyframes: mean
@@ -44,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._harness import in_subprocess, table, write_json  # noqa: E402
 
-CASES = ("none", "stops4", "stops2", "stops8")
+CASES = ("none", "stops4", "stops2", "stops8", "targets4")
 
 
 def _checkpoints(scenario: dict[str, Any], truth):
@@ -99,7 +102,12 @@ def _map(scenario, truth, loc, sel) -> dict[str, Any]:
 
 
 def run_case(case: str, seed: int, with_map: bool) -> dict[str, Any]:
-    from factorgraph.control_sim import nearest_keyframes, path_corners, simulate_control
+    from factorgraph.control_sim import (
+        nearest_keyframes,
+        path_corners,
+        simulate_control,
+        simulate_targets,
+    )
     from factorgraph.localize import LocalizeParams, localize
     from toolkit.config import load_scenario
     from toolkit.pipeline import make_plan, make_truth, select_samples, simulate_log
@@ -109,7 +117,9 @@ def run_case(case: str, seed: int, with_map: bool) -> dict[str, Any]:
     plan = make_plan(scenario, truth)
     log = simulate_log(scenario, truth, plan)
     control = None
-    if case != "none":
+    if case == "targets4":
+        log, control, _ = simulate_targets(log, truth, sigma_m=0.02)
+    elif case != "none":
         ks = path_corners(log)
         if case == "stops2":
             ks = np.array([ks.min(), ks.max()])

@@ -18,7 +18,7 @@ from terrain.errors import bad_input
 from .control import ControlPoints
 from .log import MeasurementLog
 
-__all__ = ["nearest_keyframes", "path_corners", "simulate_control"]
+__all__ = ["nearest_keyframes", "path_corners", "simulate_control", "simulate_targets"]
 
 
 def nearest_keyframes(log: MeasurementLog, xy: np.ndarray) -> np.ndarray:
@@ -100,3 +100,80 @@ def simulate_control(
     if not math.isfinite(float(surveyed.sum())):
         raise bad_input("log.truth", "non-finite", "finite true positions", "")
     return replace(log, control_id=control_id.astype(str)), ctrl, true
+
+
+def simulate_targets(
+    log: MeasurementLog,
+    terrain: Any,
+    xy: Any = None,
+    sigma_m: float | tuple[float, float, float] = 0.02,
+    outward_m: float = 6.0,
+    seed: int | None = None,
+) -> tuple[MeasurementLog, ControlPoints, np.ndarray]:
+    """Marked targets on the snow that the camera tracks, surveyed as control points.
+
+    Parameters
+    ----------
+    log : MeasurementLog
+        A simulated log (with truth); its camera model observes the targets.
+    terrain : xarray.DataArray
+        The true DEM the log was simulated on (targets sit on it; occlusion).
+    xy : ndarray of shape (n, 2), optional
+        Target positions, projected CRS. Default: the path's 4 corners (:func:`path_corners`)
+        moved ``outward_m`` along each axis away from the path's centre, so that the rover
+        sees them from the side (a target straight ahead gives no parallax).
+    sigma_m : float or 3 floats
+        1-sigma of the survey (m).
+    seed : int, optional
+        Default the log's seed; the draws are child 2 of its ``SeedSequence``.
+
+    Returns
+    -------
+    log : MeasurementLog
+        With the targets' observations appended (track ids above every other track id).
+    control : ControlPoints
+        Surveyed targets with ``target_id`` (ids ``T1..Tn``).
+    true_xyz : ndarray of shape (n, 3)
+        True target positions, projected CRS.
+    """
+    from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
+
+    from .simulate import Surface, _observe
+
+    if not log.has_truth:
+        raise bad_input("log", "no truth", "a simulated log", "use simulate_traverse()")
+    path = log.truth["xyz"]
+    if xy is None:
+        centre = path[:, :2].mean(0)
+        corners = path[path_corners(log), :2]
+        xy = corners + np.sign(corners - centre) * outward_m + log.origin
+    xy_local = np.asarray(xy, float).reshape(-1, 2) - log.origin
+    n = len(xy_local)
+    seed = int(log.seed or 0) if seed is None else int(seed)
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2,)))
+    surface = Surface(terrain, log.origin)
+    pts = np.column_stack([xy_local, surface.z(xy_local)])
+    if not np.isfinite(pts).all():
+        raise bad_input("xy", np.asarray(xy).tolist(), "targets on the DEM", "move them inside")
+    R = Rotation.from_euler("ZYX", log.truth["rpy"][:, ::-1]).as_matrix()
+    cam, tree = log.sensors.camera, cKDTree(xy_local)
+    first = int(max(log.obs_id.max(initial=-1), log.truth.get("landmark_id", [-1]).max()) + 1)
+    ks, ids, uvs = [log.obs_k], [log.obs_id], [log.obs_uv]
+    for k in range(log.n_keyframes):
+        wTb = np.eye(4)
+        wTb[:3, :3], wTb[:3, 3] = R[k], path[k]
+        j, uv = _observe(surface, wTb @ cam.body_T_camera(), pts, tree, cam, rng)
+        ks.append(np.full(j.size, k))
+        ids.append(j + first)
+        uvs.append(uv)
+    sigma = np.broadcast_to(np.asarray(sigma_m, float), (n, 3))
+    true = pts + np.r_[log.origin, 0.0]
+    surveyed = true + rng.normal(0.0, 1.0, (n, 3)) * sigma
+    names = [f"T{i + 1}" for i in range(n)]
+    ctrl = ControlPoints(names, surveyed, sigma, log.crs, np.arange(n) + first, 0.0, "simulated")
+    obs = {"obs_k": np.concatenate(ks), "obs_id": np.concatenate(ids)}
+    truth = dict(log.truth)  # the targets are landmarks too (ids above the others: sorted)
+    truth["landmark_id"] = np.r_[truth.get("landmark_id", np.zeros(0, int)), np.arange(n) + first]
+    truth["landmark_xyz"] = np.r_[truth.get("landmark_xyz", np.zeros((0, 3))), pts]
+    return replace(log, **obs, obs_uv=np.concatenate(uvs), truth=truth), ctrl, true

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from factorgraph.control import ControlPlan, ControlPoints, add_control_factors
-from factorgraph.control_sim import path_corners, simulate_control
+from factorgraph.control_sim import path_corners, simulate_control, simulate_targets
 from factorgraph.factors import biased_gps_factor
 from factorgraph.localize import localize
 from factorgraph.log import read_log, write_log
@@ -182,6 +182,21 @@ def test_marginals_with_control_match_gtsam(controlled):
     for j in np.linspace(0, res.n_landmarks - 1, 4).astype(int):
         ref = m.marginalCovariance(L(int(res.landmark_id[j])))
         np.testing.assert_allclose(res.landmark_cov[j], ref, rtol=1e-3, atol=1e-5)
+
+
+def test_marked_targets_tracked_by_the_camera_tie_the_map(short_log):
+    """Two marked targets 6 m beside the path, seen by the simulated camera: both become
+    landmarks, get their priors, and the shared vertical offset (> 1 m without) drops."""
+    dem = default_site(2.0)
+    log, ctrl, true = simulate_targets(short_log, dem, [[W + 60, N - 69], [W + 110, N - 81]])
+    assert np.isin(ctrl.target_id, log.obs_id).all()
+    np.testing.assert_array_equal(log.obs_uv[: short_log.obs_k.size], short_log.obs_uv)
+    res = localize(log, control=ctrl)
+    rep = res.control
+    assert rep["n_used"] == 2 and {u["kind"] for u in rep["used"]} == {"target"}
+    assert np.sqrt(res.shared_offset_cov[2, 2]) < 0.1
+    lm = res.landmark_xyz[np.searchsorted(res.landmark_id, ctrl.target_id)]
+    np.testing.assert_allclose(lm + np.r_[log.origin, 0.0], true, atol=0.1)
 
 
 def test_shared_offset_with_control_matches_the_joint_marginal(controlled):
