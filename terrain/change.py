@@ -157,6 +157,14 @@ def difference(
     """
     import xarray as xr
 
+    if coregister and stable is None and outline is None:
+        raise bad_input(
+            "stable/outline",
+            None,
+            "stable ground for the co-registration (every cell would absorb the glacier's "
+            "thinning into the vertical bias)",
+            "pass outline= (stable = outside it) or stable=, or coregister=False",
+        )
     eb, ea = _elevation(before, "before"), _elevation(after, "after")
     gb, ga = Grid.from_dataarray(eb), Grid.from_dataarray(ea)
     grid, which, note = _common_grid(gb, ga)

@@ -84,7 +84,9 @@ def test_non_overlapping_is_an_error():
     a = Grid.from_bounds((W0, S0, W0 + 100, S0 + 100), 2.0)
     b = Grid.from_bounds((W0 + 500, S0, W0 + 600, S0 + 100), 2.0)
     with pytest.raises(InputError, match="overlap"):
-        difference(product(a, plane, 0.1), product(b, plane, 0.1))
+        difference(product(a, plane, 0.1), product(b, plane, 0.1), outline=box(0, 0, 1, 1))
+    with pytest.raises(InputError, match="stable ground"):  # co-registration needs it
+        difference(product(a, plane, 0.1), product(a, plane, 0.1))
 
 
 def test_coregistered_difference_removes_shift():
