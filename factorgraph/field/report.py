@@ -78,7 +78,12 @@ class IngestReport:
         out = [
             f"GPS {self.gps_file} ({self.gps_format}): {self.gps_used} of {self.gps_records} "
             f"records used",
-            f"clock offset {self.clock_offset_s:.3f} s ({self.clock_source})",
+            f"clock offset {self.clock_offset_s:.3f} s ({self.clock_source}"
+            + (
+                f", +- {self.clock_fit['standard_error_s']:.3f} s)"
+                if "standard_error_s" in self.clock_fit
+                else ")"
+            ),
         ]
         out += [f"  skipped {n} GPS records: {r}" for r, n in sorted(self.gps_skipped.items())]
         if self.gps_gaps.get("count"):

@@ -14,8 +14,10 @@ from terrain.errors import InputError, bad_input
 
 console = Console()
 
-#: Formats of the log tables (factorgraph.log.write_log).
-FORMATS = ("csv", "parquet")
+#: Formats of the log tables (factorgraph.log.write_log), and "field": the files a rover brings
+#: back (factorgraph.write_field_log: GPS file, odometry/tilt/tracks CSV, camera YAML).
+FORMATS = ("csv", "parquet", "field")
+GPS_FORMATS = ("nmea", "gpx", "rtklib")
 #: Keys a plan file must have (survey.SurveyPlan.to_dict, as ``glacimap plan`` writes it).
 PLAN_KEYS = ("waypoints", "swath", "pattern", "params", "samples", "sample_swath")
 PLAN_KEYS += ("swath_offsets", "heading_deg", "origin")
@@ -77,13 +79,25 @@ def simulate_command(
         ),
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder of the log.")] = Path("out/log"),
-    fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
+    fmt: Annotated[
+        str,
+        typer.Option(
+            "--format",
+            help="csv or parquet (glacimap-log/1 tables), or field: a rover's own files "
+            "(docs/field-format.md).",
+        ),
+    ] = "csv",
+    gps_format: Annotated[
+        str, typer.Option("--gps-format", help="GPS file of --format field: nmea, gpx, rtklib.")
+    ] = "nmea",
     seed: Annotated[int | None, typer.Option(help="Override the scenario's seed.")] = None,
 ) -> None:
     """Simulate a rover traverse: drive the scenario's plan (or --plan FILE) over the
     scenario's true DEM with its sensors (GPS with Gauss-Markov bias, odometry with drift,
     camera features) and write the measurement log (meta.json + keyframes, odometry, gps,
-    observations, landmarks tables) into --out, ready for glacimap localize."""
+    observations, landmarks tables) into --out, ready for glacimap localize; with
+    --format field, the files a rover brings back instead (GPS as NMEA / GPX / RTKLIB,
+    odometry, tilt and tracks CSV, camera.yaml, survey.json; no truth)."""
     from factorgraph.log import write_log
     from terrain.atomic import ensure_writable_dir
     from terrain.grid import check_same_crs
@@ -94,6 +108,8 @@ def simulate_command(
 
     if fmt not in FORMATS:
         raise bad_input("--format", fmt, " or ".join(FORMATS), "pick one")
+    if gps_format not in GPS_FORMATS:
+        raise bad_input("--gps-format", gps_format, " or ".join(GPS_FORMATS), "pick one")
     scenario = load_scenario(config, {"seed": seed} if seed is not None else None)
     survey_plan = read_plan(plan) if plan is not None else None
     out_dir = ensure_writable_dir(out)
@@ -108,10 +124,17 @@ def simulate_command(
     with console.status(f"driving {survey_plan.path_length:.0f} m..."):
         log = simulate_log(scenario, truth, survey_plan)
     with staged_folder(out_dir) as tmp:
-        write_log(log, tmp, fmt=fmt)
+        if fmt == "field":
+            from factorgraph.field import write_field_log
+
+            write_field_log(log, tmp, gps_format=gps_format)
+        else:
+            write_log(log, tmp, fmt=fmt)
         written = sorted(p.name for p in tmp.iterdir())
-    other = FORMATS[1 - FORMATS.index(fmt)]
+    other = {"csv": "parquet", "parquet": "csv"}.get(fmt)
     for name in written:  # a stale table in the other format would be read first
-        if name.endswith(f".{fmt}"):
+        if other and name.endswith(f".{fmt}"):
             (out_dir / name).with_suffix(f".{other}").unlink(missing_ok=True)
+    for stale in ({"gps.nmea", "gps.gpx", "gps.pos"} - set(written)) if fmt == "field" else ():
+        (out_dir / stale).unlink(missing_ok=True)  # one GPS file per field folder
     _print_log(log, survey_plan, out_dir, fmt)
