@@ -285,3 +285,26 @@ def test_tracks_nan_and_camera_distortion(log, tmp_path):
     assert "undistorted" in rep.camera
     keep = np.arange(log.obs_k.size) != 3
     np.testing.assert_allclose(back.obs_uv, log.obs_uv[keep], atol=2e-3)
+
+
+def test_localize_cli_summary_counts_gated_fix(log, tmp_path):
+    """``glacimap localize`` on a glacimap-log/1 folder whose gps.csv has one fix 5 km off:
+    no traceback, and localize_summary.json counts it."""
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from factorgraph import write_log
+    from toolkit.cli import app
+
+    write_log(log, tmp_path / "log")
+    gps = pd.read_csv(tmp_path / "log" / "gps.csv")
+    gps.loc[30, "x"] += 5000.0
+    gps.to_csv(tmp_path / "log" / "gps.csv", index=False)
+    res = CliRunner().invoke(
+        app, ["localize", str(tmp_path / "log"), "--out", str(tmp_path / "loc")]
+    )
+    assert res.exit_code == 0, (res.output, res.exception)
+    summary = json.loads((tmp_path / "loc" / "localize_summary.json").read_text())
+    assert summary["gps_skipped"] == {"gross_outlier": 1}
+    assert summary["gps_used"] == log.gps_k.size - 1
+    assert "gross_outlier 1" in res.output

@@ -385,6 +385,14 @@ def localization_summary(loc: LocalizationResult, sel: LandmarkSelection) -> dic
             "isam2_rebuilds": loc.n_rebuilds,
         }
     )
+    # GPS records not used, by reason: the field reader's counts (factorgraph.field) and the
+    # gross outliers localize gated (factorgraph/field/gate.py)
+    skipped = dict(log.ingest.get("gps_skipped", {}))
+    if log.ingest.get("gps_gross_outliers_gated"):
+        gated = int(log.ingest["gps_gross_outliers_gated"])
+        skipped["gross_outlier"] = int(skipped.get("gross_outlier", 0)) + gated
+    out["gps_used"] = int(log.gps_k.size)
+    out["gps_skipped"] = skipped
     if "landmark_xyz" in log.truth and loc.n_landmarks:
         e = loc.landmark_xyz - loc.true_landmarks()
         nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])

@@ -96,6 +96,10 @@ def _print_counts(summary: dict[str, Any], files: list[Path]) -> None:
             f"{v:.2f}" for v in summary["shared_offset_std_m"]
         ),
     }
+    gps_skipped = summary.get("gps_skipped") or {}
+    if gps_skipped:
+        reasons = ", ".join(f"{k} {v}" for k, v in sorted(gps_skipped.items()))
+        rows["GPS fixes skipped"] = f"{sum(gps_skipped.values())} ({reasons})"
     rows["expected horizontal RMSE, from the marginals (m)"] = (
         f"{summary['predicted_horizontal_rmse_m']:.2f}"
     )
