@@ -2,22 +2,15 @@
 ground, the check that keeps them apart from the checkpoints (ASPRS 2023), and the factors
 that carry them into the localization graph (design and measurements: docs/ground-control.md).
 
-Two ways in, both optional and both used when present:
+* **Stops** -- the rover stands on a point at the keyframes whose ``control_id`` (keyframes
+  table, :mod:`factorgraph.log`) names it: a position prior ``t(X_k) = p_c`` per keyframe
+  (``gtsam.GPSFactor``, no bias term), 1-sigma ``sqrt(u sigma_c^2 + sigma_centring^2)``,
+  ``u`` the point's number of priors, so that they carry its survey error once. With the GPS
+  bias states in the graph a stop observes the bias: ``z_gps - t(X_k) = b_k + v``.
+* **Targets** -- a point whose ``target_id`` is a track id (``observations.landmark_id``)
+  gets ``PriorFactorPoint3`` on that landmark, if the track became one. Matched by id only.
 
-* **Stops** -- the rover stands on a control point at the keyframes whose ``control_id``
-  column (keyframes table of :mod:`factorgraph.log`) names it. Each such keyframe gets a
-  position prior ``t(X_k) = p_c`` (``gtsam.GPSFactor``: error ``t(X_k) - p_c``, no bias term)
-  with 1-sigma ``sqrt(m sigma_c^2 + sigma_centring^2)`` per axis, ``m`` the number of stop
-  keyframes of that point: ``m`` priors then carry the survey error ``sigma_c`` once (their
-  information adds to ``1 / sigma_c^2``), not ``m`` times. With the GPS bias states in the
-  graph a stop observes the bias there: ``z_gps - t(X_k) = b_k + v``.
-* **Targets** -- a marked target the camera tracks: a control point whose ``target_id`` is a
-  track id (``observations.landmark_id``) gets ``PriorFactorPoint3`` on that landmark, when
-  the track became a landmark. The matching rule is the id only: no nearest-landmark guess
-  (texture points are metres apart; a 2 cm prior on one beside the mark is a false one).
-
-Factors are added after the online pass, before the batch refinement (one ``ISAM2.update``),
-so the online (filter) estimate is that of the rover without control.
+Both are added after the online pass, before the batch refinement (one ``ISAM2.update``).
 """
 
 from __future__ import annotations
@@ -433,14 +426,18 @@ def add_control_factors(plan: ControlPlan, isam, history, landmarks: set[int]) -
 
     ``landmarks``: ids of the tracks that became landmarks. Updates ``plan.used`` and
     ``plan.unused`` (a target whose track never became a landmark: ``target_not_in_graph``).
+    A point with ``u`` priors (stop keyframes, and its target) gives each ``sqrt(u)`` times
+    its survey sigma: together they carry the survey error once.
     """
     import gtsam
 
     X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
     graph = gtsam.NonlinearFactorGraph()
     ctrl = plan.control
+    tracked = {i for i, lid in plan.targets.items() if lid in landmarks}
+    uses = {i: ks.size + (i in tracked) for i, ks in plan.stops.items()}  # survey error once
     for i, ks in plan.stops.items():
-        sig = np.sqrt(ks.size * ctrl.sigma[i] ** 2 + ctrl.centring_sigma_m**2)
+        sig = np.sqrt(uses[i] * ctrl.sigma[i] ** 2 + ctrl.centring_sigma_m**2)
         noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
         for k in ks:  # GPSFactor: error t(X_k) - p, a position prior with no bias term
             graph.add(gtsam.GPSFactor(X(int(k)), plan.local_xyz[i], noise))
@@ -451,7 +448,7 @@ def add_control_factors(plan: ControlPlan, isam, history, landmarks: set[int]) -
             if name not in plan.used:
                 plan.unused[name] = "target_not_in_graph"
             continue
-        noise = gtsam.noiseModel.Diagonal.Sigmas(ctrl.sigma[i])
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(uses.get(i, 1)) * ctrl.sigma[i])
         graph.add(gtsam.PriorFactorPoint3(L(lid), plan.local_xyz[i], noise))
         plan.used[name] = "stop+target" if name in plan.used else "target"
         plan.unused.pop(name, None)

@@ -117,6 +117,28 @@ def test_target_prior_only_on_a_landmark_in_the_graph():
     assert plan.used == {"T": "target"} and plan.unused == {"U": "target_not_in_graph"}
 
 
+def test_a_point_used_as_stop_and_target_counts_its_survey_error_once():
+    """Stop on P at one keyframe and P's target tracked as landmark 7 (pose and landmark not
+    linked here): u = 2 priors, each sigma sqrt(2) sigma_c (the stop's with the centring error
+    added), so the pose's variance is 2 sigma_c^2 + sigma_m^2 = 8e-4 + 1e-4 and the landmark's
+    2 sigma_c^2 = 8e-4 (sigma_c 0.02, centring 0.01, a 100 m prior on the landmark)."""
+    import gtsam
+
+    X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
+    g, v = _pinned_pose_graph(1)
+    g.add(gtsam.PriorFactorPoint3(L(7), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 100.0)))
+    v.insert(L(7), np.zeros(3))
+    isam = _isam()
+    isam.update(g, v)
+    pts = ControlPoints(["P"], [[1.0, 2.0, 3.0]], 0.02, UTM, target_id=[7], centring_sigma_m=0.01)
+    plan = _plan(pts, stops={0: np.array([0])}, targets={0: 7})
+    add_control_factors(plan, isam, g, {7})
+    m = gtsam.Marginals(g, isam.calculateEstimate())
+    np.testing.assert_allclose(np.diag(m.marginalCovariance(X(0)))[3:], 9e-4, rtol=1e-3)
+    np.testing.assert_allclose(np.diag(m.marginalCovariance(L(7))), 8e-4, rtol=1e-3)
+    assert plan.used == {"P": "stop+target"} and plan.unused == {}
+
+
 @pytest.fixture(scope="module")
 def short_log():
     """A 120 m straight traverse (121 keyframes), as in tests/test_localize.py."""
