@@ -31,11 +31,11 @@ __all__ = ["AlbedoParams", "GlacierAlbedo", "pyramid", "sample_pyramid"]
 class AlbedoParams:
     """Surface appearance of a scene (albedo in [0, 1], lengths in m)."""
 
-    snow_fraction: float = 0.7  # share of the site under snow; the rest firn / bare ice
+    snow_fraction: float = 0.9  # share of the site under snow; the rest firn / bare ice
     snow_albedo: float = 0.85
     firn_albedo: float = 0.65
     ice_albedo: float = 0.42
-    grain_contrast: float = 0.06  # relative std of the fine grain albedo on snow
+    grain_contrast: float = 0.02  # relative std of the fine grain albedo on snow (flat light)
     ice_grain_contrast: float = 0.25  # relative std on bare ice (dirt in the ice)
     dirt_cones_per_100m2: float = 1.0  # dark debris cones, radius 0.3-1.5 m
     rocks_per_m2: float = 0.05  # dark stones, radius 3-15 cm

@@ -200,7 +200,10 @@ class Renderer:
         """World points (n, 3) (local ENU, m) seen through pixels ``uv`` (n, 2) by a camera
         with rotation ``R`` (3, 3) and centre ``c`` (3,); NaN rows for sky."""
         d, t = self._cast(R, c, np.asarray(uv, float).reshape(-1, 2))
-        return np.where(np.isfinite(t)[:, None], np.asarray(c) + d * t[:, None], np.nan)
+        hit = np.isfinite(t)
+        out = np.full((len(t), 3), np.nan)
+        out[hit] = np.asarray(c) + d[hit] * t[hit, None]
+        return out
 
     def radiance(self, R: np.ndarray, c: np.ndarray) -> np.ndarray:
         """Noise-free image (H, W) in DN (float) for camera rotation ``R`` and centre ``c``."""

@@ -1,0 +1,65 @@
+"""Frames on disk: PNG + timestamps round trip through OpenCV, skips counted by reason."""
+
+import numpy as np
+import pytest
+
+from factorgraph.sensors import CameraModel
+from factorgraph.vision import read_frames, write_frames
+from terrain.errors import InputError
+
+CAM = CameraModel(width_px=64, height_px=48, fx_px=60.0, fy_px=60.0, cx_px=32.0, cy_px=24.0)
+
+
+def frames(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return [(k, rng.integers(0, 256, (48, 64), dtype=np.uint8)) for k in range(n)]
+
+
+def test_round_trip_is_lossless_and_streams(tmp_path):
+    src = frames(5)
+    t = np.arange(5) * 2.0
+    passed = list(write_frames(tmp_path, iter(src), t))
+    assert [k for k, _ in passed] == list(range(5))
+    got = list(read_frames(tmp_path, t, CAM))
+    for (k, a), (j, b) in zip(src, got, strict=True):
+        assert k == j and b is not None and np.array_equal(a, b)
+    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+
+
+def test_skips_are_counted_by_reason(tmp_path):
+    t = np.arange(6) * 2.0
+    list(write_frames(tmp_path, iter(frames(6)), t))
+    (tmp_path / "frame_000001.png").unlink()  # missing
+    (tmp_path / "frame_000002.png").write_bytes(b"not a png")  # unreadable
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "frame_000003.png"), np.zeros((10, 10), np.uint8))  # wrong size
+    table = (tmp_path / "timestamps.csv").read_text().splitlines()
+    table = [line for line in table if not line.startswith("4,")]  # keyframe 4 has no frame
+    table.append("9,7.1,frame_000005.png")  # 7.1 s: no keyframe within 0.5 s
+    (tmp_path / "timestamps.csv").write_text("\n".join(table) + "\n")
+    folder = read_frames(tmp_path, t, CAM)
+    got = dict(folder)
+    assert [k for k, v in got.items() if v is not None] == [0, 5]
+    s = folder.skipped
+    assert s["missing_file"] == 1 and s["unreadable"] == 1 and s["wrong_size"] == 1
+    assert s["keyframe_without_frame"] == 1 and s["no_matching_keyframe"] == 1
+
+
+def test_frames_match_keyframes_by_time_not_name(tmp_path):
+    import cv2
+
+    img = frames(1)[0][1]
+    cv2.imwrite(str(tmp_path / "IMG_7.png"), img)
+    (tmp_path / "timestamps.csv").write_text("t_s,file\n4.05,IMG_7.png\n")
+    got = dict(read_frames(tmp_path, np.arange(4) * 2.0, CAM))  # 0, 2, 4, 6 s
+    assert got[2] is not None and np.array_equal(got[2], img)
+    assert got[0] is None and got[1] is None and got[3] is None
+
+
+def test_missing_table_or_columns_are_input_errors(tmp_path):
+    with pytest.raises(InputError, match="timestamps.csv"):
+        read_frames(tmp_path, np.arange(3.0))
+    (tmp_path / "timestamps.csv").write_text("time,name\n0,a.png\n")
+    with pytest.raises(InputError, match="columns"):
+        read_frames(tmp_path, np.arange(3.0))
