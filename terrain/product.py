@@ -9,7 +9,12 @@ import numpy as np
 
 from .grid import Grid
 
-__all__ = ["software_version", "terrain_dataset"]
+__all__ = ["VERTICAL_DATUM", "cf_grid_mapping", "software_version", "terrain_dataset"]
+
+#: What the product's heights are, unless its attrs say otherwise: the rover's GPS heights
+#: (WGS 84 ellipsoid); glacimap applies no geoid model. A prior or samples in another datum
+#: set ``attrs["vertical_datum"]``.
+VERTICAL_DATUM = "ellipsoidal height above the WGS 84 ellipsoid (GPS); no geoid applied"
 
 
 def software_version() -> str:
@@ -22,25 +27,43 @@ def software_version() -> str:
         return "unknown"
 
 
+def cf_grid_mapping(grid: Grid) -> dict[str, Any]:
+    """CF-1.8 grid-mapping attributes of ``grid.crs`` (pyproj ``CRS.to_cf``) plus
+    ``spatial_ref`` (WKT, what GDAL reads), for a scalar ``spatial_ref`` variable."""
+    cf = {k: v for k, v in grid.crs.to_cf().items() if isinstance(v, str | int | float)}
+    return {**cf, "spatial_ref": grid.crs.to_wkt()}
+
+
 def terrain_dataset(grid: Grid, elevation: Any, elevation_std: Any, attrs: dict[str, Any]):
-    """Wrap mean and 1-sigma arrays of shape ``grid.shape`` (numpy or dask) as the product."""
+    """Wrap mean and 1-sigma arrays of shape ``grid.shape`` (numpy or dask) as the product.
+
+    GIS conventions: a CF ``grid_mapping`` (scalar coordinate ``spatial_ref``, so that GDAL,
+    QGIS and rioxarray read the CRS from a NetCDF file) and ``attrs["vertical_datum"]``
+    (:data:`VERTICAL_DATUM` unless ``attrs`` names one).
+    """
     import xarray as xr
 
+    var = {"units": "m", "grid_mapping": "spatial_ref"}
     return xr.Dataset(
         {
             "elevation": (
                 ("y", "x"),
                 elevation,
-                {"units": "m", "long_name": "posterior mean elevation"},
+                {**var, "long_name": "posterior mean elevation"},
             ),
             "elevation_std": (
                 ("y", "x"),
                 elevation_std,
-                {"units": "m", "long_name": "posterior 1-sigma of elevation"},
+                {**var, "long_name": "posterior 1-sigma of elevation"},
             ),
         },
-        coords=grid.coords(),
-        attrs={**grid.attrs(), **attrs},
+        coords={**grid.coords(), "spatial_ref": ((), np.int32(0), cf_grid_mapping(grid))},
+        attrs={
+            "Conventions": "CF-1.8",
+            **grid.attrs(),
+            "vertical_datum": VERTICAL_DATUM,
+            **attrs,
+        },
     )
 
 

@@ -127,9 +127,11 @@ def test_contours_of_a_plane_match_hand_computation(plane, tmp_path):
     # (5 levels), each one straight south-north line at x = west + (level - 100) / 0.05.
     assert (res["lines"], res["levels"]) == (5, 5)
     meta, _, wkb, fields = read(tmp_path / "c.gpkg", layer="contour")
-    assert meta["fields"].tolist() == ["elev", "mean_std"]
-    elev, mean_std = fields
+    assert meta["fields"].tolist() == ["elev", "index", "mean_std"]
+    elev, index, mean_std = fields
     np.testing.assert_array_equal(np.sort(elev), [105.0, 110.0, 115.0, 120.0, 125.0])
+    # index contours every 5 intervals of 5 m from 0 m: 125 m only
+    np.testing.assert_array_equal(index.astype(bool), elev == 125.0)
     for line, level in zip(shapely.from_wkb(wkb), elev, strict=True):
         xy = shapely.get_coordinates(line)
         np.testing.assert_allclose(xy[:, 0], BOUNDS[0] + (level - 100.0) / 0.05, atol=1e-6)

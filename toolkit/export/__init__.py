@@ -4,7 +4,8 @@ Every writer validates its input first (``terrain.errors.InputError`` naming the
 value and the fix) and writes atomically: a file is complete or absent.
 
 - :func:`write_cog` — Cloud-Optimized GeoTIFF, bands ``elevation`` and ``elevation_std``.
-- :func:`write_contours` — contour lines (``elev``, ``mean_std``) to GeoPackage / GeoJSON.
+- :func:`write_contours` — contour lines (``elev``, ``index``, ``mean_std``) to GeoPackage /
+  GeoJSON.
 - :func:`write_vector_layers` — named point / line layers (trajectory, landmarks) to
   GeoPackage; :class:`VectorLayer` builds them, :func:`write_geojson` writes one as RFC 7946.
 - :func:`write_mesh` — triangle mesh with per-vertex 1-sigma as PLY, VTP and a PNG render.
@@ -12,12 +13,13 @@ value and the fix) and writes atomically: a file is complete or absent.
 
 from __future__ import annotations
 
-from .contours import contour_layer, contour_levels, write_contours
+from .contours import INDEX_EVERY, contour_layer, contour_levels, write_contours
 from .geotiff import write_cog
 from .mesh import TerrainMesh, terrain_mesh, write_mesh
 from .vectors import VectorLayer, write_geojson, write_vector_layers
 
 __all__ = [
+    "INDEX_EVERY",
     "TerrainMesh",
     "VectorLayer",
     "contour_layer",

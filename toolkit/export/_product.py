@@ -14,7 +14,7 @@ from terrain.errors import bad_input
 __all__ = ["Product", "bilinear", "provenance_strings", "read_product"]
 
 #: Attributes that describe georeferencing, not provenance (stored natively by each format).
-GEOREF_ATTRS = frozenset({"crs", "crs_wkt", "transform", "resolution"})
+GEOREF_ATTRS = frozenset({"crs", "crs_wkt", "transform", "resolution", "Conventions"})
 VARIABLES = ("elevation", "elevation_std")
 
 
@@ -39,8 +39,15 @@ class Product:
 
     @property
     def provenance(self) -> dict[str, str]:
-        """Provenance attributes (everything but georeferencing) as strings."""
-        return provenance_strings(self.attrs)
+        """Provenance attributes (everything but georeferencing) as strings, always with
+        ``vertical_datum`` (:attr:`vertical_datum`)."""
+        return {**provenance_strings(self.attrs), "vertical_datum": self.vertical_datum}
+
+    @property
+    def vertical_datum(self) -> str:
+        """What the heights are (``attrs["vertical_datum"]``, set by
+        :func:`terrain.product.terrain_dataset`), or that the product does not say."""
+        return str(self.attrs.get("vertical_datum") or "not stated by the product")
 
 
 def read_product(ds: Any) -> Product:

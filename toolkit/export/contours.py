@@ -13,7 +13,11 @@ from ._files import check_target
 from ._product import Product, bilinear, read_product
 from .vectors import VectorLayer, write_geojson, write_vector_layers
 
-__all__ = ["contour_layer", "contour_levels", "write_contours"]
+__all__ = ["INDEX_EVERY", "contour_layer", "contour_levels", "write_contours"]
+
+#: Index (major) contours: every 5th interval counted from 0 m (levels that are multiples of
+#: 5 x the interval), the cartographic convention; the ``index`` field marks them.
+INDEX_EVERY = 5
 
 
 def contour_levels(elevation: np.ndarray, interval_m: float) -> np.ndarray:
@@ -51,8 +55,10 @@ def contour_layer(ds: Any, interval_m: float) -> tuple[VectorLayer, np.ndarray]:
     -------
     layer : VectorLayer
         One LineString per connected line (closed loops end where they start), easting /
-        northing in the product's CRS, with fields ``elev`` (the level, m) and ``mean_std``
-        (length-weighted mean of the bilinearly sampled ``elevation_std`` along it, m).
+        northing in the product's CRS, with fields ``elev`` (the level, m), ``index`` (True
+        on index contours: levels that are multiples of :data:`INDEX_EVERY` intervals) and
+        ``mean_std`` (length-weighted mean of the bilinearly sampled ``elevation_std`` along
+        it, m).
     levels : ndarray of shape (k,)
         All levels within the elevation range (some may have no line after masking).
     """
@@ -80,7 +86,7 @@ def _contours(product: Product, interval: float) -> tuple[VectorLayer, np.ndarra
             f"at most 10,000 levels over {np.nanmax(z) - np.nanmin(z):.1f} m of relief",
             "choose a larger interval",
         )
-    lines, elev, mean_std = [], [], []
+    lines, elev, mean_std, index = [], [], [], []
     if min(grid.shape) >= 2:
         # contourpy wants increasing coordinates: flip rows so y goes south -> north.
         masked = np.ma.masked_invalid(z[::-1])
@@ -93,8 +99,14 @@ def _contours(product: Product, interval: float) -> tuple[VectorLayer, np.ndarra
                     continue
                 lines.append(xy)
                 elev.append(level)
+                index.append(round(level / interval) % INDEX_EVERY == 0)
                 mean_std.append(_mean_along(grid, product.elevation_std, xy))
-    layer = VectorLayer.lines(lines, elev=np.asarray(elev, float), mean_std=np.asarray(mean_std))
+    layer = VectorLayer.lines(
+        lines,
+        elev=np.asarray(elev, float),
+        index=np.asarray(index, bool),
+        mean_std=np.asarray(mean_std),
+    )
     return layer, levels
 
 
@@ -112,17 +124,20 @@ def write_contours(
         Terrain product (``elevation``, ``elevation_std`` on ``(y, x)``, CRS in attrs).
     gpkg_path : path-like
         Output ``.gpkg``: layer ``contour`` (LineString, the product's CRS) with fields
-        ``elev`` (m) and ``mean_std`` (m), provenance as layer metadata.
+        ``elev`` (m), ``index`` (bool: index contour) and ``mean_std`` (m), provenance and
+        ``vertical_datum`` as layer metadata.
     interval_m : float
         Contour interval, metres (> 0).
     geojson_path : path-like, optional
-        Also write the lines as RFC 7946 GeoJSON (longitude/latitude, WGS 84), same fields.
+        Also write the lines as RFC 7946 GeoJSON (longitude/latitude, WGS 84), same fields;
+        the FeatureCollection's ``description`` states the vertical datum of ``elev``.
 
     Returns
     -------
     dict
         ``lines`` (features written), ``levels`` (levels that have at least one line),
-        ``interval`` (m), ``paths`` (the files written, as str).
+        ``index_lines`` (features flagged ``index``), ``interval`` (m), ``vertical_datum``,
+        ``paths`` (the files written, as str).
     """
     target = check_target(gpkg_path, (".gpkg",), "gpkg_path")
     if geojson_path is not None:
@@ -134,10 +149,13 @@ def write_contours(
     write_vector_layers(target, {"contour": layer}, crs, metadata=product.provenance)
     paths = [str(target)]
     if geojson_path is not None:
-        paths.append(str(write_geojson(geojson_path, layer, crs, name="contour")))
+        note = f"contour elevations (elev, m): {product.vertical_datum}"
+        paths.append(str(write_geojson(geojson_path, layer, crs, name="contour", description=note)))
     return {
         "lines": len(layer),
         "levels": int(np.unique(layer.fields["elev"]).size),
+        "index_lines": int(np.count_nonzero(layer.fields["index"])),
         "interval": float(interval_m),
+        "vertical_datum": product.vertical_datum,
         "paths": paths,
     }

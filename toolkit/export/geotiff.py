@@ -67,7 +67,9 @@ def write_cog(
     Two float32 bands, descriptions ``elevation`` and ``elevation_std``, unit ``m``, nodata
     NaN (non-finite cells of the product become nodata); the CRS and the affine transform of
     the product's Grid (pixel-is-area, north-up). The product's provenance attributes (seed,
-    method, hyperparameters, ...) are dataset tags; JSON-encoded where not strings.
+    method, hyperparameters, ...) and ``vertical_datum`` (what the heights are: ellipsoidal
+    GPS heights unless the product says otherwise) are dataset tags; JSON-encoded where not
+    strings.
 
     Raises
     ------

@@ -123,6 +123,7 @@ def _write_ply(path: Path, mesh: TerrainMesh, provenance: dict[str, str]) -> Non
         f"crs {f'EPSG:{epsg}' if epsg else _ascii(mesh.crs.to_wkt())}",
         "quality = elevation_std, posterior 1-sigma of elevation, metres",
         *(f"{k} {_ascii(v)}" for k, v in provenance.items() if k in ("seed", "method")),
+        f"vertical_datum of z {_ascii(provenance.get('vertical_datum', 'not stated'))}",
     ]
     n, m = len(mesh.vertices), len(mesh.faces)
     header = "\n".join(
@@ -220,7 +221,8 @@ def write_mesh(
         Terrain product (``elevation``, ``elevation_std`` on ``(y, x)``, CRS in attrs).
     ply_path : path-like, optional
         Binary PLY: float32 vertex ``x y z`` (relative to the origin) and ``quality`` (=
-        ``elevation_std``, m), triangle faces; comment lines give the origin, CRS and seed.
+        ``elevation_std``, m), triangle faces; comment lines give the origin, CRS, seed and
+        the vertical datum of z.
     vtp_path : path-like, optional
         VTK XML PolyData: the same points, point arrays ``elevation`` (absolute, m) and
         ``elevation_std`` (m), field data ``origin`` (3,), ``crs_wkt`` and provenance.
@@ -237,7 +239,7 @@ def write_mesh(
     -------
     dict
         ``vertices``, ``triangles``, ``dropped_cells``, ``origin`` (list of 3 floats),
-        ``crs`` and ``paths`` (files written).
+        ``crs``, ``vertical_datum`` and ``paths`` (files written).
     """
     targets = {
         "ply": ply_path and check_target(ply_path, (".ply",), "ply_path"),
@@ -273,5 +275,6 @@ def write_mesh(
         "dropped_cells": mesh.dropped_cells,
         "origin": mesh.origin.tolist(),
         "crs": mesh.crs.to_string(),
+        "vertical_datum": product.vertical_datum,
         "paths": paths,
     }

@@ -212,6 +212,7 @@ def write_geojson(
     *,
     name: str = "features",
     precision: int = 7,
+    description: str | None = None,
 ) -> Path:
     """Write one layer as RFC 7946 GeoJSON: reprojected to WGS 84 longitude/latitude.
 
@@ -228,6 +229,8 @@ def write_geojson(
         Name of the FeatureCollection.
     precision : int
         Decimal digits of the coordinates (7 -> ~1 cm).
+    description : str, optional
+        The FeatureCollection's ``description`` member (e.g. the vertical datum of heights).
     """
     target = check_target(path, (".geojson", ".json"), "path")
     layer = _as_layer(name, layer)
@@ -246,6 +249,10 @@ def write_geojson(
             name,
             "EPSG:4326",
             "GeoJSON",
-            layer_options={"RFC7946": "YES", "COORDINATE_PRECISION": str(precision)},
+            layer_options={
+                "RFC7946": "YES",
+                "COORDINATE_PRECISION": str(precision),
+                **({"DESCRIPTION": description} if description else {}),
+            },
         )
     return target
