@@ -29,6 +29,13 @@ def test_every_name_in_all_imports(name):
             assert inspect.getdoc(obj), f"{name}.{n} has no docstring"
 
 
+def _fresh(code: str) -> str:
+    """Run ``code`` in a fresh interpreter; its stdout, stripped."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip()
+
+
 def test_issue_17_names():
     """The names issue 17 asks for, in a fresh interpreter (nothing imported before)."""
     code = (
@@ -42,8 +49,7 @@ def test_issue_17_names():
         "assert hasattr(standards, 'CHECKPOINT_COUNTS')\n"
         "print('ok')\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+    assert _fresh(code) == "ok"
 
 
 def test_toolkit_imports_lazily():
@@ -55,8 +61,7 @@ def test_toolkit_imports_lazily():
         "assert 'toolkit.pipeline' in sys.modules\n"
         "print(sorted(set(toolkit.__all__) - set(dir(toolkit))))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr[-2000:]
+    assert _fresh(code) == "[]"
     toolkit = importlib.import_module("toolkit")
     assert set(toolkit._WHERE) <= set(toolkit.__all__)  # every lazy name is public
     with pytest.raises(AttributeError, match="no attribute 'nothing'"):
