@@ -308,3 +308,16 @@ def test_localize_cli_summary_counts_gated_fix(log, tmp_path):
     assert summary["gps_skipped"] == {"gross_outlier": 1}
     assert summary["gps_used"] == log.gps_k.size - 1
     assert "gross_outlier 1" in res.output
+
+
+def test_tilt_not_covering_every_keyframe_is_not_used(log, tmp_path):
+    import pandas as pd
+
+    folder = _folder(log, tmp_path)
+    tilt = pd.read_csv(folder / "tilt.csv")
+    tilt.iloc[:-5].to_csv(folder / "tilt.csv", index=False)  # the last 5 keyframes lack it
+    back, rep = read_field_log(folder)
+    assert back.tilt_up is None and rep.tilt.startswith("not used: 5 keyframes")
+    tilt.iloc[:1].to_csv(folder / "tilt.csv", index=False)  # one reading only
+    back, rep = read_field_log(folder)
+    assert back.tilt_up is None and "keyframes without a reading" in rep.tilt

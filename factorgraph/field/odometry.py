@@ -91,7 +91,10 @@ def read_tilt(path: str | Path, t_kf: np.ndarray, tol_s: float) -> tuple[np.ndar
     if not len(a):
         return None, f"not used: {path.name} has no finite reading"
     a = a[np.argsort(a[:, 0], kind="stable")]
-    i, gap = nearest_keyframe(a[:, 0], t_kf) if len(a) > 1 else (np.zeros(len(t_kf), int), t_kf)
+    if len(a) > 1:
+        i, gap = nearest_keyframe(a[:, 0], t_kf)
+    else:
+        i, gap = np.zeros(len(t_kf), int), t_kf - a[0, 0]
     missing = int((np.abs(gap) > tol_s).sum())
     if missing:
         return None, f"not used: {missing} keyframes without a reading within {tol_s:g} s"
