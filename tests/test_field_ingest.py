@@ -321,3 +321,23 @@ def test_tilt_not_covering_every_keyframe_is_not_used(log, tmp_path):
     tilt.iloc[:1].to_csv(folder / "tilt.csv", index=False)  # one reading only
     back, rep = read_field_log(folder)
     assert back.tilt_up is None and "keyframes without a reading" in rep.tilt
+
+
+def test_per_fix_sigma_reaches_localize():
+    """A receiver's own sigma (2 cm RTK fixes) outweighs the stated model (2.5 m): the same
+    fixes with per-fix sigmas hold the track to centimetres, without them to decimetres
+    (measured: keyframe horizontal RMSE 0.015 m with, 0.083 m without)."""
+    from factorgraph.sensors import GPSModel, SensorSuite
+
+    rtk = SensorSuite(gps=GPSModel(sigma_white_m=(0.02,) * 3, bias_sigma_m=(0.01,) * 3))
+    sim = simulate_traverse(default_site(2.0), LEGS, sensors=rtk, seed=5)
+    model = SensorSuite(gps=GPSModel(bias_sigma_m=(0.01,) * 3))  # white 2.5 m stated
+    plain = dataclasses.replace(sim, sensors=model)
+    per_fix = dataclasses.replace(plain, gps_sigma=np.full(sim.gps_xyz.shape, 0.02))
+
+    def rmse(res):
+        e = res.keyframe_xyz[:, :2] - sim.truth["xyz"][:, :2]
+        return float(np.sqrt((e**2).sum(1).mean()))
+
+    with_sigma, without = rmse(localize(per_fix)), rmse(localize(plain))
+    assert with_sigma < 0.05 < without, (with_sigma, without)
