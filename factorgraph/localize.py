@@ -3,7 +3,7 @@ Gauss-Markov bias states (or, as a negative control, plain white-noise GPS facto
 ``GenericProjectionFactorCal3_S2`` with a Huber kernel on explicit ``Point3`` landmarks,
 initialised by gated triangulation.
 
-Each step asks iSAM2 only for the current pose (DESIGN.md §5: a whole-graph
+Each step asks iSAM2 only for the current pose (docs/architecture.md §5: a whole-graph
 ``calculateEstimate`` per step costs ~0.6 s at 600 steps). Landmark marginals are computed
 once at the final estimate by :mod:`factorgraph.marginals`.
 """

@@ -5,8 +5,8 @@ Why this exists
 ---------------
 The online iSAM2 pass keeps every variable at the linearization point it was inserted at
 (relinearizing a survey's trajectory each time a GPS fix moves it re-eliminates most of the
-tree, DESIGN.md §5). That estimate is the solution of the *linear* system at those points,
-not the MAP: on a 19-minute traverse its graph error was 3.6e6 against 3.5e4 at the truth,
+tree, docs/architecture.md §5). That estimate is the solution of the *linear* system at those
+points, not the MAP: on a 19-minute traverse its graph error was 3.6e6 against 3.5e4 at the truth,
 1,161 keyframes, horizontal RMSE 5.6 m. Gauss-Newton started there diverges (the projection
 Jacobians are wrong by the trajectory's accumulated rotation) and ``ISAM2.update(...,
 force_relinearize=True)`` still honours the relinearization thresholds.

@@ -1,6 +1,6 @@
 """Real DEMs that glacimap did not make, fetched on demand, and glacier-sized test sites.
 
-Sources (DESIGN.md §5; docs/terrain.md "Real terrain"): Debian packages that ship real
+Sources (docs/architecture.md §5; docs/terrain.md "Real terrain"): Debian packages that ship real
 elevation data, downloaded with ``apt-get download`` and unpacked with ``dpkg -x`` (no R):
 
 ``olinda``  r-cran-stars ``tif/olinda_dem_utm25s.tif``: a 111 x 111 DEM at 90 m (SRTM-like),

@@ -1,4 +1,4 @@
-"""The survey plan: where the rover drives and where its sensor samples (DESIGN.md §3).
+"""The survey plan: where the rover drives and where its sensor samples (docs/architecture.md §3).
 
 Conventions
 -----------

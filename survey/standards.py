@@ -4,7 +4,7 @@ All lengths are metres; feet appear only in labels (1 ft = 0.3048 m exactly). St
 
 ``"paper"``      the paper's Tables I-III as published (RMSE = CI/6 for every class).
 ``"asprs1990"``  ASPRS Accuracy Standards for Large-Scale Maps (1990): CI/3, 2CI/3, CI for
-                 contours, CI/6, CI/3, CI/2 for spot heights (DESIGN.md section 5).
+                 contours, CI/6, CI/3, CI/2 for spot heights (docs/architecture.md §5).
 ``"asprs2014"``  ASPRS Positional Accuracy Standards for Digital Geospatial Data, Ed. 1 (2014).
 ``"asprs2023"``  the same, Edition 2, Version 1.0 (August 2023).
 ``"nssda"``      FGDC-STD-007.3-1998, National Standard for Spatial Data Accuracy.

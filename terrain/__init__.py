@@ -1,6 +1,6 @@
 """The terrain layer: grids and CRS, synthetic glaciers, satellite priors, GP reconstruction.
 
-``terrain`` is the base of glacimap (DESIGN.md §2): it imports nothing from ``survey``,
+``terrain`` is the base of glacimap (docs/architecture.md §2): it imports nothing from ``survey``,
 ``factorgraph`` or ``toolkit``. The names below are the public contract.
 """
 

@@ -6,10 +6,10 @@ plus an optional fitted nugget for noise the samples do not state), and ``m`` a 
 constant, a triangulated satellite DEM (Section II-C), or any callable.
 
 The posterior follows Rasmussen & Williams, Algorithm 2.1 — not the paper's Eq 4-5, whose
-subscripts are swapped (DESIGN.md §5). The estimator has scikit-learn's shape: the constructor
-stores settings, ``fit`` validates and factors ``K`` once, every ``predict`` reuses the factor,
-no explicit inverse is formed for prediction, and the variance diagonal is computed chunk by
-chunk without the (m, m) posterior covariance.
+subscripts are swapped (docs/architecture.md §5). The estimator has scikit-learn's shape: the
+constructor stores settings, ``fit`` validates and factors ``K`` once, every ``predict`` reuses
+the factor, no explicit inverse is formed for prediction, and the variance diagonal is computed
+chunk by chunk without the (m, m) posterior covariance.
 """
 
 from __future__ import annotations

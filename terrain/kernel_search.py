@@ -2,8 +2,8 @@
 
 Real terrain is not one stationary squared exponential. A single SE fitted to a real DEM
 gave 1.41x Delaunay's RMSE with half the truth outside its 95 % interval, while a two-scale
-Matérn 5/2 gave 0.75x and 93 % (DESIGN.md §5). Which family suits a site is a question for
-the data, so ``"auto"`` fits a small family and keeps the one with the best penalised
+Matérn 5/2 gave 0.75x and 93 % (docs/architecture.md §5). Which family suits a site is a
+question for the data, so ``"auto"`` fits a small family and keeps the one with the best penalised
 evidence:
 
     BIC = -2 log p(y | theta_hat) + p log n        (Eq 9 at the fitted theta, p parameters)

@@ -162,7 +162,7 @@ class SquaredExponential(Kernel):
         Eq 1 writes ``Gamma = diag(1/gamma)`` inside ``(x - x')^T Gamma (x - x')``, which makes
         gamma a *squared* length scale (``reading="squared_lengthscale"``: l = sqrt(gamma),
         so the paper's gamma = 315 gives l = 17.7 m). Section II-D's prose calls gamma "the
-        length scale" (``reading="lengthscale"``: l = gamma = 315 m). DESIGN.md §5.
+        length scale" (``reading="lengthscale"``: l = gamma = 315 m). docs/architecture.md §5.
         """
         if reading == "squared_lengthscale":
             lengthscale = np.sqrt(np.asarray(gamma, dtype=float))

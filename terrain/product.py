@@ -1,4 +1,4 @@
-"""The terrain product (DESIGN.md §3): an ``xarray.Dataset`` with ``elevation`` and
+"""The terrain product (docs/architecture.md §3): an ``xarray.Dataset`` with ``elevation`` and
 ``elevation_std`` (metres) on dims ``(y, x)`` of a :class:`Grid`, CRS and provenance in attrs."""
 
 from __future__ import annotations

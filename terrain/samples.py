@@ -1,4 +1,4 @@
-"""ElevationSamples: the one table the terrain stage reads (DESIGN.md §3).
+"""ElevationSamples: the one table the terrain stage reads (docs/architecture.md §3).
 
 Landmarks selected by the factor graph, GPS survey points, LiDAR ground returns or a CSV all
 arrive here as x, y, z and an elevation variance (Eq 6's sigma_i^2), validated once.

@@ -1,7 +1,7 @@
 """Sample a true DEM the way a rover's camera does: landmarks beside a driven path.
 
 This stands in for the localization stage until real landmark selection feeds the terrain
-stage (DESIGN.md §1 step 4): most landmarks lie close to the path, none closer than the
+stage (docs/architecture.md §1 step 4): most landmarks lie close to the path, none closer than the
 paper's 5 m first-seen distance (Section II-E), each with an elevation variance that grows
 with range — what Eq 7 gives a monocular landmark.
 """

@@ -1,6 +1,6 @@
 """Tiled local GP prediction: exact GPs on overlapping tiles, blended into one seamless map.
 
-The kernel matrix of 50,000 landmarks does not fit a laptop (DESIGN.md §5: the exact GP
+The kernel matrix of 50,000 landmarks does not fit a laptop (docs/architecture.md §5: the exact GP
 stops near 10k points on 2 cores), but at rover-scale length scales (~15 m) a cell's
 posterior depends on the data within a few length scales. So the query domain is cut into
 square tiles of side ``tile``; each tile gets an exact GP (R&W Alg. 2.1) on the samples

@@ -1,4 +1,4 @@
-"""The house rules of DESIGN.md §2, checked on the source tree itself."""
+"""The house rules of docs/architecture.md §2, checked on the source tree itself."""
 
 import ast
 from pathlib import Path

@@ -87,7 +87,8 @@ def test_asprs1990_contours_and_spot_heights():
         assert max_rmse("asprs1990", cls, 1.0, feature=feat) == pytest.approx(lim, rel=1e-12)
     assert max_rmse("asprs1990", "1", 1.0) == pytest.approx(0.333, abs=5e-4)
     assert max_rmse("asprs1990", "2", 1.0, "spot") == pytest.approx(0.333, abs=5e-4)
-    # paper's CI/6 equals ASPRS 1990 Class 1 *spot height*, not its contour limit (DESIGN.md 5)
+    # paper's CI/6 equals ASPRS 1990 Class 1 *spot height*, not its contour limit
+    # (docs/architecture.md §5)
     assert max_rmse("asprs1990", "1", 2.7432, "spot") == pytest.approx(0.4572)
     assert class_achieved(0.4572, "asprs1990", 2.7432) == "1"  # contour: 0.9144 m limit
     assert class_achieved(0.9, "asprs1990", 1.0) == "3"

@@ -1,4 +1,4 @@
-"""Accuracy certificate of a DEM against independent checkpoints (DESIGN.md §1 step 6).
+"""Accuracy certificate of a DEM against independent checkpoints (docs/architecture.md §1 step 6).
 
 The certificate is a plain JSON-ready dict: vertical RMSE with a seeded bootstrap 95 %
 interval, bias, spread, NSSDA Accuracy_z, the contour interval the accuracy supports, one

@@ -1,4 +1,4 @@
-"""The accuracy-certification report: one self-contained HTML file (DESIGN.md §1 step 7).
+"""The accuracy-certification report: one self-contained HTML file (docs/architecture.md §1 step 7).
 
 :func:`write_report` renders ``templates/report.html.j2`` (jinja2, autoescaped) with the
 certificate of :func:`toolkit.certify.certify` and matplotlib figures (Agg backend) embedded

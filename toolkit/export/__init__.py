@@ -1,4 +1,4 @@
-"""GIS and mesh exports of a terrain product (DESIGN.md §1 step 7).
+"""GIS and mesh exports of a terrain product (docs/architecture.md §1 step 7).
 
 Every writer validates its input first (``terrain.errors.InputError`` naming the field, the
 value and the fix) and writes atomically: a file is complete or absent.

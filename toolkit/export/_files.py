@@ -64,7 +64,7 @@ def atomic_file(final: Path) -> Iterator[Path]:
     :func:`terrain.atomic.atomic_path` names its temporary ``.<stem>.<random><suffix>.tmp``;
     GDAL drivers (GeoPackage warns about the extension), VTK and image writers look at the
     extension, so this yields that name without ``.tmp`` and moves the finished file onto it.
-    On any error both temporaries are removed and ``final`` is untouched (DESIGN.md §4).
+    On any error both temporaries are removed and ``final`` is untouched (docs/architecture.md §4).
     """
     with atomic_path(final) as tmp:
         inner = tmp.with_name(tmp.name[: -len(".tmp")])

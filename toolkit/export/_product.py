@@ -51,7 +51,7 @@ class Product:
 
 
 def read_product(ds: Any) -> Product:
-    """Validate a terrain product Dataset (DESIGN.md §3) and load its arrays.
+    """Validate a terrain product Dataset (docs/architecture.md §3) and load its arrays.
 
     Parameters
     ----------
