@@ -42,36 +42,33 @@ def _products(out: Path) -> list[str]:
     return sorted(p.name for p in out.rglob("*") if p.is_file()) if out.exists() else []
 
 
-def test_sigint_during_run_exits_130_with_one_line_and_no_product(tmp_path):
-    proc = _start(["run", "--out", "o"], tmp_path)
+def _interrupt(args: list[str], cwd: Path, out: Path) -> tuple[int, str]:
+    """Start ``glacimap ARGS``, send SIGINT once it is at work, return its exit code and
+    stderr."""
+    proc = _start(args, cwd)
     try:
-        _wait_until_running(proc, tmp_path / "o")
+        _wait_until_running(proc, out)
         os.kill(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 130, err
+    return proc.returncode, err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["run", "--out", "o"], ["reconstruct", "--demo", "--out", "o"]],  # iSAM2 / the GP fit
+    ids=["run", "reconstruct"],
+)
+def test_sigint_exits_130_with_one_line_and_no_product(tmp_path, args):
+    rc, err = _interrupt(args, tmp_path, tmp_path / "o")
+    assert rc == 130, err
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and "interrupted" in lines[0], err
     assert "Traceback" not in err
     left = _products(tmp_path / "o")
-    assert not left, f"interrupted run left files: {left}"
-
-
-def test_sigint_during_reconstruct_demo_exits_130(tmp_path):
-    proc = _start(["reconstruct", "--demo", "--out", "r"], tmp_path)
-    try:
-        _wait_until_running(proc, tmp_path / "r")  # the demo's GP fit takes tens of seconds
-        os.kill(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 130, err
-    assert "interrupted" in err and "Traceback" not in err
-    left = _products(tmp_path / "r")
-    assert not left, f"interrupted reconstruct left files (temporary ones included): {left}"
+    assert not left, f"interrupted {args[0]} left files (temporary ones included): {left}"
 
 
 @pytest.mark.parametrize("code", [0, 3, 130])
