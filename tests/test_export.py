@@ -338,6 +338,8 @@ def test_cli_exports_every_product(product, tmp_path):
     summary = json.loads((tmp_path / "out" / FILES["summary"]).read_text())
     assert summary["seed"] == 7 and summary["mesh"]["dropped_cells"] == 24
     assert summary["contours"]["interval"] == 2.0 and summary["contours"]["lines"] > 0
+    assert "index contours, every 10 m" in res.output  # 5 intervals of 2 m
+    assert f"heights: {summary['contours']['vertical_datum']}" in " ".join(res.output.split())
 
 
 def test_cli_bad_interval_writes_nothing(product, tmp_path):

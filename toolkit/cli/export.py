@@ -62,7 +62,7 @@ def export_command(
     """Export a terrain map: Cloud-Optimized GeoTIFF (elevation + 1-sigma bands), contour
     lines (GeoPackage, GeoJSON) and a mesh with per-vertex 1-sigma (PLY, VTP, PNG render);
     writes them and export_summary.json into --out."""
-    from ..export import write_cog, write_contours, write_mesh
+    from ..export import INDEX_EVERY, write_cog, write_contours, write_mesh
 
     if not (np.isfinite(interval) and interval > 0):
         raise bad_input("--interval", interval, "a positive contour interval in metres", "")
@@ -96,7 +96,8 @@ def export_command(
     c = summary["contours"]
     console.print(f"wrote {summary['cog']} (bands elevation, elevation_std)")
     console.print(
-        f"wrote {c['lines']} contour lines on {c['levels']} levels every {c['interval']:g} m: "
+        f"wrote {c['lines']} contour lines on {c['levels']} levels every {c['interval']:g} m "
+        f"({c['index_lines']} index contours, every {INDEX_EVERY * c['interval']:g} m): "
         + ", ".join(c["paths"])
     )
     if mesh:
@@ -106,4 +107,5 @@ def export_command(
             f"({m['dropped_cells']} NaN cells dropped, origin {m['origin']}): "
             + ", ".join(m["paths"])
         )
+    console.print(f"heights: {c['vertical_datum']}")
     console.print(f"wrote {out_dir / FILES['summary']}")
