@@ -87,7 +87,9 @@ def test_change_writes_products(epochs, tmp_path):
     html = (out / "change_report.html").read_text()
     for key in ('id="budget"', 'id="fig-dh"', 'id="fig-dh_std"', 'id="fig-hypsometry"'):
         assert key in html
-    assert len(vol["hypsometry"]) >= 4
+    hyps = vol["hypsometry"]
+    assert len(hyps) >= 4 and all(np.isfinite(r["mean_dh"]) for r in hyps)
+    assert hyps[0]["mean_dh"] < hyps[-1]["mean_dh"]  # thinning is strongest low down
     assert not list(out.glob(".*"))  # no staging leftovers
 
 

@@ -139,7 +139,7 @@ def hypsometric_profile(
             continue
         w = np.where(m, W, 0.0)
         s = band_sigma(w) if band_sigma else float(np.nanmean(std[m]))
-        mean = float(np.sum(w * dh) / w.sum())
+        mean = float(np.sum(w[m] * dh[m]) / w[m].sum())
         rows.append({"z_lo": a, "z_hi": b, "n_cells": int(m.sum()), "mean_dh": mean, "sigma": s})
     return rows
 
