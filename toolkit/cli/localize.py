@@ -119,6 +119,36 @@ def _print_counts(summary: dict[str, Any], files: list[Path]) -> None:
     console.print("wrote " + ", ".join(str(f) for f in files))
 
 
+def _track_images(log, folder: Path):
+    """``log`` with its observations from the front-end run on ``folder``'s frames; landmark
+    truth kept only when the tracks are those the log already holds (same ids)."""
+    import numpy as np
+
+    from factorgraph.vision import attach_tracks, read_frames, track_features
+
+    frames = read_frames(folder, log.t, log.sensors.camera)
+    with console.status(f"tracking features in {len(frames.files)} frames..."):
+        tr = track_features(frames, log.sensors.camera, odometry=log.odometry)
+    same = (
+        tr.k.size == log.obs_k.size
+        and np.array_equal(tr.k, log.obs_k)
+        and np.array_equal(tr.landmark_id, log.obs_id)
+        and np.allclose(tr.uv, log.obs_uv, atol=1e-6)
+    )
+    truth_xyz = None
+    if same and "landmark_xyz" in log.truth:
+        truth_xyz = np.full((tr.n_tracks, 3), np.nan)
+        truth_xyz[log.truth["landmark_id"]] = log.truth["landmark_xyz"]
+    skipped = {k: v for k, v in frames.skipped.items() if v}
+    console.print(
+        f"front-end on {folder}: {tr.n_tracks} tracks, {len(tr.k) / log.n_keyframes:.1f} "
+        f"views per keyframe; frames skipped: {skipped or 'none'}; rejected: "
+        + ", ".join(f"{k} {v}" for k, v in sorted(tr.counts.items()))
+        + ("" if same else "; tracks differ from the log's table: landmark truth not used")
+    )
+    return attach_tracks(log, tr, truth_xyz)
+
+
 def localize_command(
     log_dir: Annotated[Path, typer.Argument(help="Measurement log folder (glacimap simulate).")],
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/localize"),
@@ -140,6 +170,13 @@ def localize_command(
         typer.Option(help="Select: what --max-sigma bounds, elevation (slope-aware) or ellipse."),
     ] = None,
     fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
+    images: Annotated[
+        bool,
+        typer.Option(
+            help="When the log has images/ (PNG + timestamps.csv), track them with the "
+            "camera front-end and use those tracks instead of the observations table."
+        ),
+    ] = True,
 ) -> None:
     """Fuse a measurement log in iSAM2 (GPS with bias states, odometry, camera landmarks),
     select landmarks by the paper's rules (1-sigma, first-seen distance; Eq 7 variance) and
@@ -183,6 +220,8 @@ def localize_command(
         if not (math.isfinite(sel_cfg[key]) and sel_cfg[key] >= 0):
             raise bad_input(opt, sel_cfg[key], "a finite distance >= 0 (m)", "e.g. 0.5 / 5")
     log = read_log_folder(log_dir)
+    if images and (log_dir / "images").is_dir():
+        log = _track_images(log, log_dir / "images")
     out_dir = ensure_writable_dir(out)
     with Progress(
         "[progress.description]{task.description}",

@@ -68,6 +68,42 @@ def _print_log(log, plan, out_dir: Path, fmt: str) -> None:
     console.print(f"wrote the measurement log ({fmt}) into {out_dir}")
 
 
+def _simulate_images(scenario, truth, plan, scene: str, images_dir: Path):
+    """The log of ``plan`` seen through rendered frames (written into ``images_dir``) and
+    tracked by the default front-end (:func:`factorgraph.vision.simulate_images`)."""
+    from factorgraph.sensors import SensorSuite
+    from factorgraph.vision import SCENES, simulate_images, vision_sensors
+
+    sensors = vision_sensors(SensorSuite.from_dict(scenario["sensors"]))
+    with console.status(f"rendering and tracking {plan.path_length:.0f} m ({scene})..."):
+        run = simulate_images(
+            truth, plan, sensors, int(scenario["seed"]), SCENES[scene], images_dir=images_dir
+        )
+    tr = run.tracks
+    console.print(
+        f"front-end: {tr.n_tracks} tracks of >= {tr.params.min_track_length} views, "
+        f"{len(tr.k) / run.log.n_keyframes:.1f} per keyframe; rejected: "
+        + ", ".join(f"{k} {v}" for k, v in sorted(tr.counts.items()))
+        + f"; render {run.timings['render_s']:.0f} s, track {run.timings['track_s']:.0f} s"
+    )
+    return run.log
+
+
+def _check_camera(camera: str, scene: str, out: Path) -> None:
+    """``--camera`` / ``--scene`` checked before the (long) simulation."""
+    if camera not in ("tracks", "images"):
+        raise bad_input("--camera", camera, "tracks or images", "pick one")
+    if camera == "images":
+        from factorgraph.vision import SCENES
+
+        if scene not in SCENES:
+            raise bad_input("--scene", scene, f"one of {sorted(SCENES)}", "pick one")
+        if (Path(out) / "images").exists():
+            raise bad_input(
+                "--out", str(Path(out) / "images"), "no frames of an earlier run", "remove it"
+            )
+
+
 def simulate_command(
     config: Annotated[
         Path | None, typer.Option("--config", help="Scenario TOML (default: embedded).")
@@ -91,6 +127,16 @@ def simulate_command(
         str, typer.Option("--gps-format", help="GPS file of --format field: nmea, gpx, rtklib.")
     ] = "nmea",
     seed: Annotated[int | None, typer.Option(help="Override the scenario's seed.")] = None,
+    camera: Annotated[
+        str,
+        typer.Option(
+            help="tracks: ideal simulated feature tracks (default); images: render the "
+            "frames (vision camera preset) into OUT/images and track them (docs/vision.md)."
+        ),
+    ] = "tracks",
+    scene: Annotated[
+        str, typer.Option(help="With --camera images: sunny_snow, sunny_dirty_ice, ...")
+    ] = "sunny_snow",
 ) -> None:
     """Simulate a rover traverse: drive the scenario's plan (or --plan FILE) over the
     scenario's true DEM with its sensors (GPS with Gauss-Markov bias, odometry with drift,
@@ -110,6 +156,7 @@ def simulate_command(
         raise bad_input("--format", fmt, " or ".join(FORMATS), "pick one")
     if gps_format not in GPS_FORMATS:
         raise bad_input("--gps-format", gps_format, " or ".join(GPS_FORMATS), "pick one")
+    _check_camera(camera, scene, out)
     scenario = load_scenario(config, {"seed": seed} if seed is not None else None)
     survey_plan = read_plan(plan) if plan is not None else None
     out_dir = ensure_writable_dir(out)
@@ -121,9 +168,12 @@ def simulate_command(
         from terrain import Grid
 
         check_same_crs(survey_plan.crs, Grid.from_dataarray(truth).crs, "--plan", "site")
-    with console.status(f"driving {survey_plan.path_length:.0f} m..."):
-        log = simulate_log(scenario, truth, survey_plan)
     with staged_folder(out_dir) as tmp:
+        if camera == "images":  # frames into OUT/images, tracks from the front-end
+            log = _simulate_images(scenario, truth, survey_plan, scene, tmp / "images")
+        else:
+            with console.status(f"driving {survey_plan.path_length:.0f} m..."):
+                log = simulate_log(scenario, truth, survey_plan)
         if fmt == "field":
             from factorgraph.field import write_field_log
 

@@ -1,0 +1,83 @@
+"""``glacimap simulate --camera images`` and ``glacimap localize`` on a log with images/."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from factorgraph.log import read_log
+from terrain import InputError
+from toolkit.cli import app
+
+runner = CliRunner()
+BOUNDS = ["526020", "6475020", "526070", "6475060"]  # one 30 m swath: 16 keyframes
+
+
+def _ok(args):
+    res = runner.invoke(app, [str(a) for a in args])
+    assert res.exit_code == 0, (res.output, res.exception)
+    return res
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    root = tmp_path_factory.mktemp("vision_cli")
+    _ok(["plan", "--swaths", "1", "--bounds", *BOUNDS, "--out", root / "plan"])
+    sim = _ok(
+        [
+            "simulate",
+            "--plan",
+            root / "plan" / "plan.json",
+            "--out",
+            root / "log",
+            "--camera",
+            "images",
+        ]
+    )
+    loc = _ok(["localize", root / "log", "--out", root / "loc"])
+    return {"root": root, "simulate": sim.output, "localize": loc.output}
+
+
+@pytest.mark.slow  # renders and tracks 16 frames, localizes 3 times: ~100 s here
+def test_simulate_writes_frames_and_their_tracks(chain):
+    root = chain["root"]
+    log = read_log(root / "log")
+    stamps = pd.read_csv(root / "log" / "images" / "timestamps.csv")
+    assert len(stamps) == log.n_keyframes
+    np.testing.assert_allclose(stamps["t_s"], log.t)
+    assert all((root / "log" / "images" / f).is_file() for f in stamps["file"])
+    assert log.sensors.camera.height_m == 1.5  # the vision preset, recorded in meta.json
+    assert log.obs_k.size > 0 and "front-end" in chain["simulate"]
+    # every landmark of the truth table is a track of the observations table
+    assert set(log.truth["landmark_id"]) <= set(log.obs_id.tolist())
+
+
+@pytest.mark.slow  # renders and tracks 16 frames, localizes 3 times: ~100 s here
+def test_localize_tracks_the_images_and_keeps_the_truth(chain):
+    root = chain["root"]
+    assert "front-end on" in chain["localize"] and "differ" not in chain["localize"]
+    summary = json.loads((root / "loc" / "localize_summary.json").read_text())
+    assert summary["selection_counts"]["in_graph"] > 0
+    assert 0 < summary["landmark_nees_mean"] < 20  # truth matched the re-tracked landmarks
+
+
+@pytest.mark.slow  # renders and tracks 16 frames, localizes 3 times: ~100 s here
+def test_localize_survives_missing_and_broken_frames(chain, tmp_path):
+    import shutil
+
+    log_dir = tmp_path / "log"
+    shutil.copytree(chain["root"] / "log", log_dir)
+    (log_dir / "images" / "frame_000005.png").unlink()
+    (log_dir / "images" / "frame_000010.png").write_bytes(b"\x89PNG broken")
+    res = _ok(["localize", log_dir, "--out", tmp_path / "loc"])
+    assert "missing_file" in res.output and "unreadable" in res.output
+    assert "landmark truth not used" in res.output  # the tracks changed
+
+
+def test_bad_camera_option_is_an_input_error(tmp_path):
+    res = runner.invoke(app, ["simulate", "--out", str(tmp_path), "--camera", "lidar"])
+    assert isinstance(res.exception, InputError) and "--camera" in str(res.exception)
