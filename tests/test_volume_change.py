@@ -191,3 +191,24 @@ def test_tiled_gp_route_is_an_upper_bound():
     # variance, 1.51x in sigma, for half of the samples here; 6.9x / 2.6x for a quarter)
     assert ref["posterior_var_m6"] < half["posterior_var_m6"] < 4 * ref["posterior_var_m6"]
     assert half["offset_response_m2"] == pytest.approx(w.sum(), rel=1e-6)
+
+
+def test_gp_route_budget_offsets_or_coregistration(fitted):
+    gp, s, grid = fitted
+    p = gp.predict_grid(grid)
+    p.attrs["shared_vertical_offset_std_m"] = 0.1
+    outline = box(W0 + 60, S0 + 60, W0 + 140, S0 + 140)
+    w = outline_weights(grid, outline)
+    d = difference(p, p, coregister=False)
+    vc = volume_change(d, outline, models=(gp, gp))
+    assert vc.volume_m3 == 0.0 and vc.method == "gp_posterior"
+    # constant mean by GLS: each survey's offset moves the whole map, 0.1 m x area
+    assert vc.budget_m3["shared_offset_before"] == pytest.approx(0.1 * w.sum(), rel=1e-6)
+    g = gp_integral(gp, grid, w)
+    assert vc.budget_m3["gp_after"] == pytest.approx(np.sqrt(g["posterior_var_m6"]))
+    total = np.sqrt(2 * g["posterior_var_m6"] + 2 * (0.1 * w.sum()) ** 2)
+    assert vc.volume_std_m3 == pytest.approx(total, rel=1e-9)
+    dco = difference(p, p, coregister=True, outline=outline)
+    vco = volume_change(dco, outline, models=(gp, gp))
+    assert "coregistration_bias" in vco.budget_m3
+    assert not any(k.startswith("shared_offset") for k in vco.budget_m3)
