@@ -119,3 +119,18 @@ def test_albedo_is_seeded_bounded_and_darker_on_dirt():
 def test_scene_rejects_impossible_settings(kwargs):
     with pytest.raises(InputError):
         Scene(**kwargs)
+
+
+def test_nodata_cells_are_filled_and_counted():
+    def holes(X, Y):
+        z = 100.0 + 0.01 * X
+        z[10:14, 20:25] = np.nan  # a 4 x 5 gap (e.g. a real DEM's radar shadow)
+        return z
+
+    da, origin = dem(holes)
+    ren = Renderer(da, origin, CAM, Scene(), rng=0)
+    assert ren.filled_cells == 20
+    R, c = level_pose([100.0, 100.0, 102.5])
+    assert np.isfinite(ren.radiance(R, c)).all()
+    with pytest.raises(InputError):
+        Renderer(dem(lambda X, Y: np.nan * X)[0], origin, CAM, Scene(), rng=0)

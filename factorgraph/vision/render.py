@@ -114,8 +114,16 @@ class Renderer:
         cx = (x >= w - margin_m) & (x <= e + margin_m)
         cy = (y >= s - margin_m) & (y <= n + margin_m)
         x, y, z = x[cx], y[cy], z[np.ix_(cy, cx)]
-        if not np.isfinite(z).all():
-            raise bad_input("terrain", "NaN cells", "a gap-free DEM under the traverse", "fill it")
+        if z.size < 4 or min(z.shape) < 2:
+            raise bad_input("terrain", z.shape, "a DEM around the traverse", "check the extent")
+        self.filled_cells = int((~np.isfinite(z)).sum())  # nodata: nearest valid cell
+        if self.filled_cells:
+            from scipy.ndimage import distance_transform_edt
+
+            if self.filled_cells == z.size:
+                raise bad_input("terrain", "all NaN", "elevations around the traverse", "")
+            idx = distance_transform_edt(~np.isfinite(z), return_indices=True)[1]
+            z = z[tuple(idx)]
         self.x, self.y, self.dx, self.dy = x, y, float(x[1] - x[0]), float(y[1] - y[0])
         self.z0 = float(z.mean())
         ny, nx = z.shape
@@ -159,7 +167,8 @@ class Renderer:
             return np.ones_like(z, np.float32)
         step = min(self.dx, self.dy)
         tan_e = math.tan(max(el, 1e-3))
-        n_steps = int(min(400, math.ceil(np.ptp(z) / tan_e / step) + 1))
+        reach = min(np.ptp(z) / tan_e, 300.0)  # shadows longer than 300 m are not cast
+        n_steps = int(min(400, math.ceil(reach / step) + 1, max(20, 2e8 // z.size)))
         rows, cols = np.mgrid[0 : z.shape[0], 0 : z.shape[1]].astype(float)
         lit = np.ones(z.shape, bool)
         for i in range(1, n_steps + 1):
