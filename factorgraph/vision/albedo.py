@@ -193,7 +193,6 @@ class GlacierAlbedo:
         albedo += (1 - w_snow - w_ice).clip(0, 1) * p.firn_albedo
         bare = 1.0 - w_snow
         area = nx * ny * cell * cell
-        yy, xx = np.mgrid[0:ny, 0:nx]
         for count, rmin, rmax, dark in (
             (rng.poisson(p.dirt_cones_per_100m2 * area / 100.0), 0.3, 1.5, 0.18),
             (rng.poisson(p.rocks_per_m2 * area), 0.03, 0.15, 0.12),
@@ -206,7 +205,9 @@ class GlacierAlbedo:
                 x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, nx), min(y1, ny)
                 if x1 <= x0 or y1 <= y0:
                     continue
-                d = np.hypot(xx[y0:y1, x0:x1] - cx[i], yy[y0:y1, x0:x1] - cy[i])
+                d = np.hypot(
+                    np.arange(x0, x1)[None, :] - cx[i], np.arange(y0, y1)[:, None] - cy[i]
+                )
                 cover = np.clip(r[i] + 0.5 - d, 0, 1) * (0.3 if r[i] < 0.5 else 1.0)
                 albedo[y0:y1, x0:x1] += cover * (dark - albedo[y0:y1, x0:x1])
                 bare[y0:y1, x0:x1] = np.maximum(bare[y0:y1, x0:x1], cover)

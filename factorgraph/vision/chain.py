@@ -93,6 +93,8 @@ class ImageRun:
     tracks : FeatureTracks
     reprojection_px : ndarray of shape (M,)
         Ground-truth pixel error of each observation (:func:`track_truth`).
+    renderer : Renderer
+        The renderer (its ``poses``: camera rotations and centres per keyframe).
     timings : dict
         ``render_s``, ``track_s`` (seconds, render and front-end interleaved).
     """

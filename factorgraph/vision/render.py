@@ -87,7 +87,10 @@ def camera_poses(xyz: np.ndarray, rpy: np.ndarray, camera: CameraModel):
 
 class Renderer:
     """Ray-cast renderer of ``terrain`` (DataArray, projected CRS) around the local rectangle
-    ``area`` (west, south, east, north; m in the frame whose origin is ``origin``)."""
+    ``area`` (west, south, east, north; m in the frame whose origin is ``origin``).
+
+    ``rng`` (a Generator or a seed) draws the albedo. :func:`render_frames` adds ``poses``:
+    the camera rotations (K, 3, 3) and centres (K, 3) of the log's true trajectory."""
 
     def __init__(
         self,

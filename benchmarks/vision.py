@@ -1,0 +1,329 @@
+"""Camera images to landmarks (issue 18): the renderer and front-end per scene and setting,
+then the full chain (images -> tracks -> iSAM2 -> selection -> GP map) against the
+ideal-track simulation of the same traverse.
+
+    python benchmarks/vision.py --out benchmarks/results/vision.json          # everything
+    python benchmarks/vision.py --cases frontend --keyframes 30              # a subset
+
+Cases
+-----
+``frontend``
+    A straight ``--keyframes``-keyframe traverse (2 m apart, the default scenario's keyframe
+    spacing) of ``terrain.synthetic.default_site(2.0)`` with the vision camera preset
+    (``factorgraph.vision.VISION_CAMERA``: 1.5 m, 10 deg down, f = 600 px), rendered in each
+    scene (sunny snow, sunny dirty ice, overcast snow, low sun), tracked by SIFT, ORB, AKAZE
+    and GFTT+KLT with CLAHE on and off (guided by the odometry in every case). Per row:
+    features and essential-RANSAC inliers per frame, inlier ratio (inliers / matches),
+    observations per keyframe in >= 3-view tracks, mean track length, ground-truth pixel error
+    of every observation against its track's surface point (the renderer's ray cast under the
+    track's last, nearest view: :func:`factorgraph.vision.track_truth`; median, p95, share
+    > 4 px), and ms per frame (render; front-end).
+``chain_sunny``
+    The default scenario (embedded TOML: 600 m site, 4-swath lawnmower, keyframes every 2 s,
+    GPS 0.5 Hz, seed 0) with the vision camera: ideal tracks vs rendered sunny-snow images
+    tracked by the default front-end, on the same log (same GPS, odometry, tilt). Also the
+    image tracks with 10 % of the tracks given one wrong association (an observation swapped
+    with another track's in the same keyframe: the repeated-texture failure). Per row:
+    landmarks in the graph and selected, graph landmarks seen per keyframe, landmark NEES
+    (3-D, full marginal) and share within 2 sigma (NEES < chi2(3) 95.45 %), keyframe
+    horizontal / vertical RMSE, GPS-only horizontal RMSE, map RMSE and 95 % coverage of the
+    satellite-mean GP map (as ``glacimap run``), timings.
+``chain_overcast``
+    The same on a 240 m part of the site (``--overcast-bounds``, ``--overcast-swaths`` 2:
+    560 m, 281 keyframes), overcast snow, CLAHE off and on.
+
+Timings are wall-clock on a shared 2-core machine (other jobs running): compare rows of one
+run, not absolute numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _harness import in_subprocess, table, write_json  # noqa: E402
+
+SCENE_NAMES = ("sunny_snow", "sunny_dirty_ice", "overcast_snow", "low_sun")
+DETECTORS = ("sift", "orb", "akaze", "klt")
+
+
+def _track_stats(tracks, err, n_frames) -> dict[str, Any]:
+    pf = tracks.per_frame
+    e = err[np.isfinite(err) & (err > 0)]
+    matches = sum(p["matches"] for p in pf)
+    return {
+        "features_per_frame": float(np.mean([p["features"] for p in pf])),
+        "inliers_per_frame": float(np.mean([p["inliers"] for p in pf[1:]])) if len(pf) > 1 else 0,
+        "inlier_ratio": sum(p["inliers"] for p in pf) / matches if matches else 0.0,
+        "views_per_keyframe": len(tracks.k) / n_frames,
+        "tracks": tracks.n_tracks,
+        "track_length": len(tracks.k) / max(tracks.n_tracks, 1),
+        "err_median_px": float(np.median(e)) if e.size else None,
+        "err_p95_px": float(np.percentile(e, 95)) if e.size else None,
+        "err_gt4_frac": float(np.mean(e > 4)) if e.size else None,
+        "track_ms": float(np.mean([p["ms"] for p in pf])),
+        "counts": dict(tracks.counts),
+    }
+
+
+def case_frontend(n_keyframes: int, seed: int) -> dict[str, Any]:
+    from factorgraph import SensorSuite, simulate_traverse
+    from factorgraph.vision import (
+        SCENES,
+        TrackParams,
+        render_frames,
+        track_features,
+        track_truth,
+        vision_sensors,
+    )
+    from terrain.synthetic import default_site
+
+    dem = default_site(2.0)
+    x, y = dem.x.values, dem.y.values
+    wp = np.array([[x[40], y[150]], [x[40] + 2.0 * n_keyframes, y[150] + 4.0]])
+    sensors = vision_sensors(SensorSuite(keyframe_dt_s=2.0))
+    log = simulate_traverse(dem, wp, sensors, seed=seed)
+    rows = []
+    for name in SCENE_NAMES:
+        t0 = time.perf_counter()
+        ren, it = render_frames(log, dem, SCENES[name], seed=seed)
+        frames = list(it)
+        render_ms = 1e3 * (time.perf_counter() - t0) / len(frames)
+        for det in DETECTORS:
+            for clahe in (False, True):
+                tr = track_features(
+                    frames, sensors.camera, TrackParams(detector=det, clahe=clahe), log.odometry
+                )
+                _, err = track_truth(ren, tr, ren.poses)
+                row = {"scene": name, "detector": det, "clahe": clahe, "render_ms": render_ms}
+                row.update(_track_stats(tr, err, len(frames)))
+                rows.append(row)
+                print(name, det, clahe, {k: row[k] for k in list(row)[4:13]}, flush=True)
+    return {"rows": rows, "keyframes": len(log.t), "seed": seed}
+
+
+def _map_metrics(sel, truth, scenario) -> dict[str, float]:
+    """The satellite-mean GP map of ``glacimap run`` (toolkit.pipeline) and its metrics."""
+    from terrain import Grid, TerrainGP, TriangulatedMean, coarse_dem, evaluate
+    from toolkit.error_budget import inflate_std
+
+    rc, seed = scenario["reconstruct"], int(scenario["seed"])
+    grid = Grid.from_bounds(
+        tuple(scenario["site"]["bounds"]), float(rc["resolution_m"]), scenario["site"]["crs"]
+    )
+    gp = TerrainGP(
+        mean=TriangulatedMean(coarse_dem(truth, cells=(8, 8))),
+        method=rc["method"],
+        max_fit_samples=int(rc["max_fit_samples"]),
+        n_restarts=int(rc["n_restarts"]),
+        seed=seed,
+    ).fit(sel.samples)
+    kept = sel.table["kept"]
+    lm_xy = np.column_stack([sel.table["x"][kept], sel.table["y"][kept]])
+    ds = inflate_std(
+        gp.predict_grid(grid),
+        gp,
+        lm_xy,
+        sel.table["z_std_m"][kept],
+        float(sel.shared_offset_std_m[2]),
+    )
+    t = truth.interp(x=grid.x, y=grid.y, method="linear").values
+    m = evaluate(ds["elevation"].values, t, ds["elevation_std"].values)
+    return {"map_rmse_m": m["rmse"], "map_coverage_95": m["coverage_95"]}
+
+
+def _chain_row(name, log, truth, scenario) -> dict[str, Any]:
+    from scipy.stats import chi2
+
+    from factorgraph import gps_only, horizontal_rmse
+    from toolkit.pipeline import localization_summary, localize_log, select_samples
+
+    t0 = time.perf_counter()
+    loc = localize_log(log, scenario)
+    loc_s = time.perf_counter() - t0
+    sel = select_samples(loc, scenario)
+    s = localization_summary(loc, sel)
+    e = loc.landmark_xyz - loc.true_landmarks()
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])
+    in_graph = set(loc.landmark_id.tolist())
+    per_k = np.bincount(log.obs_k[np.isin(log.obs_id, list(in_graph))], minlength=log.n_keyframes)
+    row = {
+        "case": name,
+        "keyframes": log.n_keyframes,
+        "landmarks_in_graph": loc.n_landmarks,
+        "landmarks_selected": int(sel.counts["kept"]),
+        "graph_landmarks_per_keyframe": float(per_k.mean()),
+        "graph_landmarks_per_keyframe_p10": float(np.percentile(per_k, 10)),
+        "landmark_nees": float(nees.mean()),
+        "landmark_in_2sigma": float(np.mean(nees < chi2.ppf(0.9545, 3))),
+        "landmark_rmse_3d_m": float(np.sqrt((e**2).sum(1).mean())),
+        "horizontal_rmse_m": s["horizontal_rmse_m"],
+        "vertical_rmse_m": s["vertical_rmse_m"],
+        "gps_only_horizontal_rmse_m": horizontal_rmse(gps_only(log).xyz, log.truth["xyz"]),
+        "localize_s": loc_s,
+        "marginals_s": s["marginals_s"],
+        "never_initialised": dict(loc.dropped),
+    }
+    t0 = time.perf_counter()
+    row.update(_map_metrics(sel, truth, scenario))
+    row["reconstruct_s"] = time.perf_counter() - t0
+    print({k: v for k, v in row.items() if k != "never_initialised"}, flush=True)
+    return row
+
+
+def _wrong_matches(tracks, frac: float, rng):
+    """``tracks`` with ``frac`` of the tracks given one wrong association: an interior
+    observation exchanged with another track's observation in the same keyframe."""
+    k, lid, uv = tracks.k.copy(), tracks.landmark_id.copy(), tracks.uv.copy()
+    ids = np.unique(lid)
+    hit = rng.choice(ids, int(frac * ids.size), replace=False)
+    swapped = 0
+    for t in hit:
+        rows = np.flatnonzero(lid == t)
+        if rows.size < 3:
+            continue
+        r = rows[rng.integers(1, rows.size - 1)] if rows.size > 2 else rows[0]
+        others = np.flatnonzero((k == k[r]) & (lid != t))
+        if others.size == 0:
+            continue
+        o = rng.choice(others)
+        uv[[r, o]] = uv[[o, r]]
+        swapped += 1
+    return dataclasses.replace(tracks, uv=uv), swapped
+
+
+def case_chain(scene: str, swaths: int, clahe_both: bool, bounds=None) -> dict[str, Any]:
+    from factorgraph import SensorSuite
+    from factorgraph.vision import (
+        SCENES,
+        TrackParams,
+        attach_tracks,
+        simulate_images,
+        track_features,
+        track_truth,
+        vision_sensors,
+    )
+    from toolkit.config import load_scenario
+    from toolkit.pipeline import make_plan, make_truth
+
+    over: dict[str, Any] = {"plan": {"n_swaths": swaths}}
+    if bounds is not None:  # a part of the default site (plan and map inside it)
+        over["site"] = {"bounds": [float(v) for v in bounds]}
+    scenario = load_scenario(None, over)
+    truth = make_truth(scenario)
+    plan = make_plan(scenario, truth)
+    sensors = vision_sensors(SensorSuite.from_dict(scenario["sensors"]))
+    seed = int(scenario["seed"])
+    t0 = time.perf_counter()
+    params = TrackParams(clahe=False)
+    frames_dir = Path("out/bench_vision_frames") / scene
+    run = simulate_images(truth, plan, sensors, seed, SCENES[scene], params, frames_dir)
+    chain_s = time.perf_counter() - t0
+    rows = [_chain_row("ideal tracks", run.ideal, truth, scenario)]
+    row = _chain_row(f"{scene} SIFT", run.log, truth, scenario)
+    row.update(run.timings)
+    e = run.reprojection_px[np.isfinite(run.reprojection_px) & (run.reprojection_px > 0)]
+    row["err_median_px"], row["err_p95_px"] = float(np.median(e)), float(np.percentile(e, 95))
+    row["render_track_s"] = chain_s
+    rows.append(row)
+    if not clahe_both:
+        bad, n = _wrong_matches(run.tracks, 0.10, np.random.default_rng(seed))
+        xyz = run.log.truth["landmark_xyz"]
+        full = np.full((run.tracks.n_tracks, 3), np.nan)
+        full[run.log.truth["landmark_id"]] = xyz
+        r = _chain_row(
+            f"{scene} SIFT + wrong matches", attach_tracks(run.log, bad, full), truth, scenario
+        )
+        r["tracks_with_wrong_match"] = n
+        rows.append(r)
+    else:
+        from factorgraph.vision import read_frames
+
+        folder = read_frames(frames_dir, run.log.t, sensors.camera)
+        tr = track_features(folder, sensors.camera, TrackParams(clahe=True), run.log.odometry)
+        xyz, err = track_truth(run.renderer, tr, run.renderer.poses)
+        r = _chain_row(f"{scene} SIFT CLAHE", attach_tracks(run.log, tr, xyz), truth, scenario)
+        e = err[np.isfinite(err) & (err > 0)]
+        r["err_median_px"], r["err_p95_px"] = float(np.median(e)), float(np.percentile(e, 95))
+        rows.append(r)
+    return {
+        "rows": rows,
+        "swaths": swaths,
+        "bounds": scenario["site"]["bounds"],
+        "scene": scene,
+        "seed": seed,
+        "sensors": sensors.to_dict(),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cases", nargs="+", default=["frontend", "chain_sunny", "chain_overcast"])
+    ap.add_argument("--keyframes", type=int, default=30)
+    ap.add_argument("--overcast-swaths", type=int, default=2)
+    ap.add_argument(
+        "--overcast-bounds",
+        type=float,
+        nargs=4,
+        default=[526000.0, 6475000.0, 526240.0, 6475240.0],
+        help="chain_overcast runs on this part of the default site (west south east north)",
+    )
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vision.json"))
+    args = ap.parse_args()
+    results: dict[str, Any] = {}
+    if args.out.exists():
+        import json
+
+        results = json.loads(args.out.read_text()).get("cases", {})
+    for case in args.cases:
+        if case == "frontend":
+            res = in_subprocess(case_frontend, args.keyframes, args.seed)
+            cols = [
+                ("scene", "scene", ""),
+                ("detector", "det", ""),
+                ("clahe", "clahe", ""),
+                ("features_per_frame", "feat/fr", ".0f"),
+                ("inlier_ratio", "inl.ratio", ".2f"),
+                ("views_per_keyframe", "views/kf", ".1f"),
+                ("track_length", "length", ".2f"),
+                ("err_median_px", "err med", ".2f"),
+                ("err_p95_px", "err p95", ".2f"),
+                ("err_gt4_frac", ">4px", ".3f"),
+                ("render_ms", "render ms", ".0f"),
+                ("track_ms", "track ms", ".0f"),
+            ]
+        else:
+            scene = "sunny_snow" if case == "chain_sunny" else "overcast_snow"
+            swaths = 4 if case == "chain_sunny" else args.overcast_swaths
+            bounds = args.overcast_bounds if case == "chain_overcast" else None
+            res = in_subprocess(case_chain, scene, swaths, case == "chain_overcast", bounds)
+            cols = [
+                ("case", "case", ""),
+                ("landmarks_in_graph", "in graph", "d"),
+                ("landmarks_selected", "selected", "d"),
+                ("graph_landmarks_per_keyframe", "lm/kf", ".1f"),
+                ("landmark_nees", "NEES", ".2f"),
+                ("landmark_in_2sigma", "in 2sig", ".2f"),
+                ("horizontal_rmse_m", "horiz m", ".2f"),
+                ("vertical_rmse_m", "vert m", ".2f"),
+                ("gps_only_horizontal_rmse_m", "GPS-only m", ".2f"),
+                ("map_rmse_m", "map RMSE", ".3f"),
+                ("map_coverage_95", "cov95", ".3f"),
+            ]
+        print(table(res["rows"], cols), flush=True)
+        results[case] = res
+        write_json(args.out, {"cases": results, "command": " ".join(sys.argv)})
+
+
+if __name__ == "__main__":
+    main()
