@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import json
 import time
-import warnings
 from typing import Any
 
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 
-from .errors import NotFittedError, TilingWarning, bad_input
+from .coarse_variance import predict_coarse_variance, variance_step
+from .errors import NotFittedError, bad_input
 from .gp_hyper import HyperparameterMixin
 from .gp_mean import GLS_MAX_SAMPLES, bind_mean, gls_coefficients, n_coef, variance_term
 from .grid import Grid, check_same_crs
@@ -32,12 +32,18 @@ from .linalg import cholesky_jitter
 from .prior import as_mean_function
 from .product import json_rows, mean_coefficients, software_version, terrain_dataset
 from .samples import ElevationSamples
-from .tiled import TileSpec, long_scale_part, predict_tiled, shortest_lengthscale
+from .tiled import (
+    TileSpec,
+    long_scale_part,
+    predict_tiled,
+    shortest_lengthscale,
+    warn_long_scale,
+)
 
 __all__ = ["TerrainGP"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
-#: Above n^2 * m multiply-adds (~2 s here) "auto" predicts the variance by the tiled GP.
+#: Above n^2 * m multiply-adds (~2 s here) "auto" predicts the variance on a lattice or tiled.
 EXACT_PREDICT_FLOPS = 4e10
 
 
@@ -72,11 +78,11 @@ class TerrainGP(HyperparameterMixin):
     chunk_size : int or None
         Query points per prediction chunk; default keeps each (chunk, n) block near 128 MB.
     seed : int
-        Seed of the one ``numpy.random.Generator`` used (restarts, fit subset); recorded in
-        every product.
+        Seed of the one ``numpy.random.Generator`` (restarts, fit subset); in every product.
     method : {"auto", "exact", "tiled"}
-        ``"auto"``: exact up to ``exact_max_samples`` samples (up to 3x that when a large
-        long-scale kernel part could not be tiled), tiled above (:mod:`terrain.tiled`).
+        ``"auto"``: exact up to ``exact_max_samples`` samples (3x with a long-scale kernel
+        part), tiled above (:mod:`terrain.tiled`); a big grid gets the exact mean and the
+        variance on a lattice (:mod:`terrain.coarse_variance`) or, tileable, the tiled GP.
     tiles : TileSpec, optional
         Tile geometry of the tiled GP; default scaled to the shortest length scale.
     local_amplitude : bool
@@ -281,14 +287,7 @@ class TerrainGP(HyperparameterMixin):
         self.method_ = "exact" if exact else "tiled"
         if not exact:
             if long_part is not None:
-                warnings.warn(
-                    f"the tiled GP sees data only within {tiles.halo:.0f} m of a tile, but the "
-                    f"kernel part {long_part!r} carries a large variance at a longer scale: far "
-                    "from data it will revert to the prior mean. Use a prior mean that holds the "
-                    "long scale (a satellite DEM), method='exact', or TileSpec(halo=...).",
-                    TilingWarning,
-                    stacklevel=2,
-                )
+                warn_long_scale(long_part, tiles.halo)
             # Tiled: no global factor. GLS coefficients of a linear mean on a subset.
             if n_coef(self.mean_):
                 sub = self.fit_index_[:: max(1, self.fit_index_.size // GLS_MAX_SAMPLES)]
@@ -299,19 +298,12 @@ class TerrainGP(HyperparameterMixin):
                 self.log_marginal_likelihood_value_ = self._vecchia_lml  # Vecchia Eq 9
                 return self
             # Eq 9 reported on the fit subset (exact there).
-            idx = (
-                self.fit_index_
-                if self.fit_index_.size < samples.n
-                else (np.sort(rng.choice(samples.n, size=min(samples.n, 2000), replace=False)))
-            )
-            self.log_marginal_likelihood_value_ = self._lml(
-                self._theta(kernel, nugget),
-                kernel,
-                X[idx],
-                self.y_resid_[idx],
-                self.z_var_[idx],
-                False,
-            )
+            idx = self.fit_index_
+            if idx.size == samples.n:
+                idx = np.sort(rng.choice(samples.n, size=min(samples.n, 2000), replace=False))
+            th, r, zv = self._theta(kernel, nugget), self.y_resid_[idx], self.z_var_[idx]
+            lml = self._lml(th, kernel, X[idx], r, zv, False)
+            self.log_marginal_likelihood_value_ = lml
             self.fit_seconds_ = time.perf_counter() - t0
             return self
 
@@ -466,7 +458,12 @@ class TerrainGP(HyperparameterMixin):
             from .chunked import predict_grid_dask
 
             return predict_grid_dask(self, grid, chunks, include_nugget)
-        mean, std = self.predict(grid.xy(), return_std=True, include_nugget=include_nugget)
+        step = variance_step(self, grid, EXACT_PREDICT_FLOPS)
+        if step > 1:  # exact mean, exact variance on a lattice (terrain/coarse_variance.py)
+            mean, std = predict_coarse_variance(self, grid, step, include_nugget)
+            self.predict_route_ = f"exact mean; variance on a {step:.2g}-cell lattice, bicubic"
+        else:
+            mean, std = self.predict(grid.xy(), return_std=True, include_nugget=include_nugget)
         return terrain_dataset(
             grid, mean.reshape(grid.shape), std.reshape(grid.shape), self.provenance()
         )

@@ -112,9 +112,17 @@ class Kernel:
         """``d rho / d log(l)`` divided by the squared scaled distance along that axis."""
         raise NotImplementedError
 
+    def _rho_overwrite(self, d2: np.ndarray) -> np.ndarray:
+        """``_rho`` allowed to reuse ``d2``'s memory (a fresh array nobody else holds)."""
+        return self._rho(d2)
+
     def __call__(self, X: np.ndarray, Y: np.ndarray | None = None) -> np.ndarray:
         """Covariance matrix, shape (n, m), m^2. ``X`` (n, 2), ``Y`` (m, 2) in metres."""
-        return self.variance * self._rho(self._scaled_sqdist(X, Y))
+        # In place: a fresh (chunk, n) array per operation costs more in page faults than
+        # the arithmetic (measured: exp of 7.5e7 values 2.3 s fresh, 0.5 s in place).
+        K = self._rho_overwrite(self._scaled_sqdist(X, Y))
+        K *= self.variance
+        return K
 
     def diag(self, X: np.ndarray) -> np.ndarray:
         """Prior variance at each point, shape (n,): the kernel is stationary."""
@@ -181,6 +189,10 @@ class SquaredExponential(Kernel):
     def _rho(self, d2: np.ndarray) -> np.ndarray:
         return np.exp(-0.5 * d2)
 
+    def _rho_overwrite(self, d2: np.ndarray) -> np.ndarray:
+        d2 *= -0.5
+        return np.exp(d2, out=d2)
+
     def _drho_dlog_ls(self, d2: np.ndarray) -> np.ndarray:
         # d/dlog l of exp(-0.5 r^2/l^2) = exp(-0.5 r^2/l^2) * (r/l)^2
         return np.exp(-0.5 * d2)
@@ -205,9 +217,14 @@ class Matern(Kernel):
             raise bad_input("nu", self.nu, "1.5 or 2.5", "use SquaredExponential for nu = inf")
 
     def _rho(self, d2: np.ndarray) -> np.ndarray:
+        return self._rho_overwrite(d2.copy())
+
+    def _rho_overwrite(self, d2: np.ndarray) -> np.ndarray:
         # In place: these matrices are the bulk of the work of a tiled prediction.
-        a = np.sqrt(d2 * (3.0 if self.nu == 1.5 else 5.0))
-        e = np.exp(-a)
+        d2 *= 3.0 if self.nu == 1.5 else 5.0
+        a = np.sqrt(d2, out=d2)
+        e = np.negative(a)
+        np.exp(e, out=e)
         if self.nu == 1.5:
             a += 1.0
             a *= e
@@ -295,7 +312,9 @@ class SumKernel:
     def __call__(self, X: np.ndarray, Y: np.ndarray | None = None) -> np.ndarray:
         K = self.parts[0](X, Y)
         for p in self.parts[1:]:
-            K += p(X, Y)
+            Kp = p(X, Y)
+            K += Kp
+            del Kp
         return K
 
     def diag(self, X: np.ndarray) -> np.ndarray:

@@ -24,13 +24,15 @@ on plain snow; one stationary variance is too large for most of the map and too 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.linalg import cho_solve, eigh, solve_triangular
 from scipy.optimize import minimize_scalar
 
-from .errors import bad_input
+from .errors import TilingWarning, bad_input
 from .linalg import cholesky_jitter
 
 __all__ = [
@@ -350,3 +352,15 @@ def predict_tiled(
         stats["amplitudes"] = np.percentile(amps, [5, 50, 95]).tolist()
     std = np.sqrt(np.maximum(second - mean * mean, 0.0)) if return_std else None
     return mean, std, stats
+
+
+def warn_long_scale(long_part: Any, halo: float) -> None:
+    """Warn that tiles cannot hold ``long_part`` (see :func:`long_scale_part`)."""
+    warnings.warn(
+        f"the tiled GP sees data only within {halo:.0f} m of a tile, but the kernel part "
+        f"{long_part!r} carries a large variance at a longer scale: far from data it will "
+        "revert to the prior mean. Use a prior mean that holds the long scale (a satellite "
+        "DEM), method='exact', or TileSpec(halo=...).",
+        TilingWarning,
+        stacklevel=3,
+    )
