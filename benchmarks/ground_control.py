@@ -109,8 +109,9 @@ def run_case(case: str, seed: int, with_map: bool) -> dict[str, Any]:
         simulate_targets,
     )
     from factorgraph.localize import LocalizeParams, localize
+    from factorgraph.select import select_landmarks
     from toolkit.config import load_scenario
-    from toolkit.pipeline import make_plan, make_truth, select_samples, simulate_log
+    from toolkit.pipeline import make_plan, make_truth, simulate_log
 
     scenario = load_scenario(None, {"seed": seed})
     truth = make_truth(scenario)
@@ -145,7 +146,14 @@ def run_case(case: str, seed: int, with_map: bool) -> dict[str, Any]:
         }
     )
     if with_map:
-        sel = select_samples(loc, scenario)
+        rules = scenario["select"]  # the pipeline's selection settings
+        sel = select_landmarks(
+            loc,
+            max_sigma=float(rules["max_sigma_m"]),
+            min_first_seen_distance=float(rules["min_first_seen_distance_m"]),
+            variance=rules["variance"],
+            rule=rules["rule"],
+        )
         t0 = time.perf_counter()
         out.update(_map(scenario, truth, loc, sel))
         out["map_s"] = time.perf_counter() - t0
