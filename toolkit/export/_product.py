@@ -28,6 +28,8 @@ class Product:
         Where the map lives (north-up, cell centres, projected CRS in metres).
     elevation, elevation_std : ndarray of shape grid.shape
         Posterior mean and 1-sigma, metres, float64; NaN where there is no value.
+    elevation_std_relative : ndarray of shape grid.shape or None
+        The map's own 1-sigma without the survey's shared offset (m), when the product has it.
     attrs : dict
         The product's attributes (CRS and provenance: seed, method, ...).
     """
@@ -36,6 +38,7 @@ class Product:
     elevation: np.ndarray
     elevation_std: np.ndarray
     attrs: dict[str, Any]
+    elevation_std_relative: np.ndarray | None = None
 
     @property
     def provenance(self) -> dict[str, str]:
@@ -119,7 +122,10 @@ def read_product(ds: Any) -> Product:
             "non-negative 1-sigma values (m)",
             "pass standard deviations, not signed errors",
         )
-    return Product(grid, elevation, std, dict(ds.attrs))
+    rel = None
+    if "elevation_std_relative" in ds.data_vars:
+        rel = np.asarray(ds["elevation_std_relative"].transpose("y", "x").values, dtype=float)
+    return Product(grid, elevation, std, dict(ds.attrs), rel)
 
 
 def provenance_strings(attrs: dict[str, Any]) -> dict[str, str]:

@@ -13,13 +13,15 @@ from terrain.errors import bad_input
 from ._files import atomic_file, check_target
 from ._product import read_product
 
-__all__ = ["BANDS", "write_cog"]
+__all__ = ["BANDS", "RELATIVE_BAND", "write_cog"]
 
 #: Band order of the GeoTIFF: (description, long name); both in metres.
 BANDS = (
     ("elevation", "posterior mean elevation"),
     ("elevation_std", "posterior 1-sigma of elevation"),
 )
+#: Third band, when the product has it: the map's own 1-sigma, the shared offset left out.
+RELATIVE_BAND = ("elevation_std_relative", "relative 1-sigma (shared survey offset excluded)")
 
 
 def overview_factors(shape: tuple[int, int], min_size: int = 8) -> list[int]:
@@ -64,7 +66,8 @@ def write_cog(
 
     Notes
     -----
-    Two float32 bands, descriptions ``elevation`` and ``elevation_std``, unit ``m``, nodata
+    Two float32 bands, descriptions ``elevation`` and ``elevation_std`` (a third,
+    ``elevation_std_relative``, when the product has the map's own 1-sigma), unit ``m``, nodata
     NaN (non-finite cells of the product become nodata); the CRS and the affine transform of
     the product's Grid (pixel-is-area, north-up). The product's provenance attributes (seed,
     method, hyperparameters, ...) and ``vertical_datum`` (what the heights are: ellipsoidal
@@ -88,12 +91,14 @@ def write_cog(
         raise bad_input("compress_level", compress_level, "an integer 1-9", "e.g. 6")
     product = read_product(ds)
     grid = product.grid
-    bands = np.stack([product.elevation, product.elevation_std]).astype(np.float32)
+    names = BANDS if product.elevation_std_relative is None else (*BANDS, RELATIVE_BAND)
+    layers = [product.elevation, product.elevation_std, product.elevation_std_relative]
+    bands = np.stack(layers[: len(names)]).astype(np.float32)
     profile = {
         "driver": "GTiff",
         "width": grid.nx,
         "height": grid.ny,
-        "count": len(BANDS),
+        "count": len(names),
         "dtype": "float32",
         "crs": grid.crs.to_wkt(),
         "transform": grid.transform,
@@ -104,7 +109,7 @@ def write_cog(
         # driver lay it out (IFDs first, overviews before the full resolution, tiles).
         with mem.open(**profile) as dst:
             dst.write(bands)
-            for i, (name, long_name) in enumerate(BANDS, start=1):
+            for i, (name, long_name) in enumerate(names, start=1):
                 dst.set_band_description(i, name)
                 dst.set_band_unit(i, "m")
                 dst.update_tags(i, long_name=long_name, units="m")

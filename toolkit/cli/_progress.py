@@ -1,0 +1,69 @@
+"""Shared pieces of the pipeline commands (``run``, ``process``): a progress bar per stage and
+the certificate's summary rows."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+
+@contextmanager
+def stage_progress(
+    console: Console, stages: tuple[str, ...]
+) -> Iterator[tuple[Callable[[str, str], None], Callable[[int, int], None]]]:
+    """Yield ``(on_stage, on_progress)`` callbacks driving one bar per stage."""
+    with Progress(
+        TextColumn("{task.description:<12}"),
+        BarColumn(),
+        TextColumn("{task.completed:>5.0f}/{task.total:<5.0f}"),
+        TimeElapsedColumn(),
+        console=console,
+        transient=False,
+    ) as bar:
+        tasks = {s: bar.add_task(s, total=1, start=False) for s in stages}
+
+        def on_stage(name: str, state: str) -> None:
+            if name not in tasks:
+                return
+            if state == "start":
+                bar.start_task(tasks[name])
+            else:
+                bar.update(tasks[name], completed=bar.tasks[tasks[name]].total)
+
+        def on_progress(k: int, total: int) -> None:
+            bar.update(tasks["localize"], total=total, completed=k)
+
+        yield on_stage, on_progress
+
+
+def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
+    """Accuracy, held-out check, contour interval and verdicts of a certificate as rows."""
+    acc = cert.get("accuracy")
+    if acc:
+        lo, hi = acc["rmse_ci95_m"]
+        table.add_row("RMSE vs checkpoints (m)", f"{acc['rmse_m']:.3f} [{lo:.3f}, {hi:.3f}]")
+        table.add_row("bias, map - checkpoint (m)", f"{acc['bias_m']:+.3f}")
+    held = cert.get("heldout_calibration")
+    if held:
+        pooled = held.get("pooled", held)
+        for key in ("coverage_68", "coverage_95"):
+            if key in pooled:
+                table.add_row(f"held-out {key.replace('_', ' ')}", f"{pooled[key]:.3f}")
+    ci = cert.get("contour_interval", {})
+    if ci.get("certified_m"):
+        table.add_row("contour interval (m)", f"{ci['certified_m']:g}")
+    elif ci.get("uncertified_m"):
+        table.add_row("contour interval (m, uncertified)", f"{ci['uncertified_m']:g}")
+    for v in cert.get("verdicts", []):
+        table.add_row(f"{v['standard']} class", str(v.get("class")))
+
+
+def print_warnings(console: Console, cert: dict[str, Any]) -> None:
+    """The certificate's warnings (e.g. a dominant bias), one line each."""
+    for w in cert.get("warnings", []):
+        console.print(f"[yellow]warning:[/] {w}")

@@ -1,0 +1,75 @@
+"""``glacimap process``: a real survey's files -> certified products (no truth anywhere)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ._progress import certificate_rows, print_warnings, stage_progress
+
+
+def process_command(
+    log_dir: Annotated[
+        Path,
+        typer.Argument(help="The rover's field folder (survey.json) or a glacimap-log/1 folder."),
+    ],
+    prior: Annotated[
+        Path | None,
+        typer.Option("--prior", help="Satellite DEM (GeoTIFF or any GDAL raster, any CRS)."),
+    ] = None,
+    control: Annotated[
+        Path | None, typer.Option("--control", help="Ground control CSV (any CRS).")
+    ] = None,
+    checkpoints: Annotated[
+        Path | None,
+        typer.Option("--checkpoints", help="Independent checkpoints CSV (any CRS)."),
+    ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option("--config", help="Settings TOML (glacimap run --print-default keys)."),
+    ] = None,
+    bounds: Annotated[
+        tuple[float, float, float, float] | None,
+        typer.Option("--bounds", help="Map extent W S E N in the log's CRS (m)."),
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("out/process"),
+) -> None:
+    """Ingest -> localize -> select -> reconstruct -> certify -> export -> report."""
+    from toolkit.config import load_scenario
+    from toolkit.processing import PROCESS_STAGES, process
+
+    console = Console()
+    settings = load_scenario(config)  # bad settings fail before any work
+    with stage_progress(console, PROCESS_STAGES) as (on_stage, on_progress):
+        res = process(
+            log_dir,
+            prior=prior,
+            control=control,
+            checkpoints=checkpoints,
+            config=settings,
+            out=out,
+            bounds=bounds,
+            on_stage=on_stage,
+            on_progress=on_progress,
+        )
+    cert = res.summary["certificate"]
+    table = Table(title=f"glacimap process — seed {res.summary['seed']} — {res.out}")
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    loc = cert.get("localization", {})
+    table.add_row("keyframes", str(loc.get("keyframes")))
+    table.add_row("GPS fixes used", str(loc.get("gps_used")))
+    for reason, n in (loc.get("gps_skipped") or {}).items():
+        table.add_row(f"  GPS skipped: {reason}", str(n))
+    table.add_row("landmarks selected", str(loc.get("landmarks_selected")))
+    if loc.get("control"):
+        table.add_row("ground control used", str(len(loc["control"].get("used", []))))
+    certificate_rows(table, cert)
+    for name, t in res.summary["timings_s"].items():
+        table.add_row(f"time: {name} (s)", f"{t:.1f}")
+    console.print(table)
+    print_warnings(console, cert)

@@ -1,0 +1,144 @@
+"""A simulated survey written as the files a field team brings home, for :func:`process`.
+
+``glacimap run`` makes the world (truth, plan, traverse) and then hands :func:`process` the
+same kinds of files a real survey has, so that both take one road (docs/pipeline.md):
+
+``rover/``
+    The rover's field folder (docs/field-format.md): GPS as NMEA GGA/RMC/GST (or GPX /
+    RTKLIB ``.pos``), odometry and tilt CSV on the rover clock, the camera as OpenCV YAML,
+    feature tracks, ``survey.json``.
+``prior.tif``
+    A satellite DEM with realistic error: the truth block-averaged to ``[prior]
+    resolution_m`` cells, shifted by a vertical datum offset ``offset_m`` and with an
+    independent error of ``noise_sd_m`` per cell (seeded).
+``checkpoints.csv``
+    ``[certify] n_checkpoints`` independent points at random places in the site (seeded),
+    heights from the truth, with a ``crs`` column.
+``control.csv``
+    Only with ``[control] n_targets > 0``: marked targets near the survey's corners that the
+    camera tracks, surveyed with ``[control] sigma_m`` (factorgraph.control_sim).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from factorgraph.log import MeasurementLog
+from terrain import Grid
+from terrain.atomic import atomic_path, ensure_writable_dir
+from terrain.sampling import sample_dem
+
+__all__ = ["FieldSurvey", "simulated_prior", "write_field_survey"]
+
+
+@dataclass
+class FieldSurvey:
+    """Paths of a survey's files (``control`` None when there is no ground control)."""
+
+    rover: Path
+    prior: Path
+    checkpoints: Path
+    control: Path | None
+    log: MeasurementLog  # the simulated log (truth kept for evaluation only)
+
+
+def simulated_prior(truth, resolution_m: float, offset_m: float, noise_sd_m: float, rng):
+    """The truth block-averaged to ``resolution_m`` cells over its extent, plus a constant
+    ``offset_m`` and independent ``N(0, noise_sd_m^2)`` per cell (``xarray.DataArray``, m)."""
+    from terrain import coarse_dem
+
+    grid = Grid.from_dataarray(truth)
+    w, s, e, n = grid.bounds
+    cells = (max(1, round((n - s) / resolution_m)), max(1, round((e - w) / resolution_m)))
+    dem = coarse_dem(truth, cells=cells)
+    noise = rng.normal(0.0, float(noise_sd_m), dem.shape) if noise_sd_m > 0 else 0.0
+    out = dem + float(offset_m) + noise
+    out.attrs.update(dem.attrs)
+    return out
+
+
+def _write_geotiff(da, path: Path) -> Path:
+    import rasterio
+
+    grid = Grid.from_dataarray(da)
+    with atomic_path(path) as tmp:
+        profile = {
+            "driver": "GTiff",
+            "width": grid.nx,
+            "height": grid.ny,
+            "count": 1,
+            "dtype": "float32",
+            "crs": grid.crs.to_wkt(),
+            "transform": grid.transform,
+            "nodata": np.nan,
+        }
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(np.asarray(da.values, dtype=np.float32)[None])
+            dst.update_tags(source="glacimap simulated satellite DEM", units="m")
+    return path
+
+
+def _write_checkpoints(truth, bounds, n: int, rng, path: Path) -> Path:
+    grid = Grid.from_dataarray(truth)
+    w, s, e, nn = bounds
+    lo = np.maximum([w, s], [grid.x[0], grid.y[-1]])
+    hi = np.minimum([e, nn], [grid.x[-1], grid.y[0]])
+    xy = rng.uniform(lo, hi, (n, 2))
+    z = sample_dem(truth, xy)
+    crs = grid.crs.to_string()
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write("id,x,y,z,crs\n")
+            for i, (x, y, h) in enumerate(zip(xy[:, 0], xy[:, 1], z, strict=True)):
+                f.write(f"CP{i + 1},{x:.4f},{y:.4f},{h:.4f},{crs}\n")
+    return path
+
+
+def write_field_survey(
+    scenario: dict[str, Any], truth, log: MeasurementLog, folder: str | Path
+) -> FieldSurvey:
+    """Write the simulated survey ``log`` over ``truth`` as field files into ``folder``.
+
+    The draws (prior error, checkpoints) come from their own stream of the scenario's seed
+    (child 3 of its ``SeedSequence``), so they do not change the traverse.
+    """
+    from factorgraph.control_sim import simulate_targets
+    from factorgraph.field import write_field_log
+
+    folder = ensure_writable_dir(folder)
+    seed = int(scenario["seed"])
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(3,)))
+    p = scenario["prior"]
+    prior = simulated_prior(
+        truth, float(p["resolution_m"]), float(p["offset_m"]), float(p["noise_sd_m"]), rng
+    )
+    cps = _write_checkpoints(
+        truth,
+        tuple(float(v) for v in scenario["site"]["bounds"]),
+        int(scenario["certify"]["n_checkpoints"]),
+        rng,
+        folder / "checkpoints.csv",
+    )
+    control_path = None
+    c = scenario["control"]
+    if int(c["n_targets"]) > 0:
+        if int(c["n_targets"]) != 4:
+            from terrain.errors import bad_input
+
+            raise bad_input("control.n_targets", c["n_targets"], "0 or 4", "4: the corners")
+        log, ctrl, _ = simulate_targets(log, truth, sigma_m=float(c["sigma_m"]), seed=seed)
+        control_path = ctrl.write_csv(folder / "control.csv")
+    rover = write_field_log(
+        log, folder / "rover", gps_format=scenario["field"]["gps_format"], crs=log.crs
+    )
+    return FieldSurvey(
+        rover=rover,
+        prior=_write_geotiff(prior, folder / "prior.tif"),
+        checkpoints=cps,
+        control=control_path,
+        log=log,
+    )

@@ -1,0 +1,238 @@
+"""``glacimap process``: a real survey's files -> the certified products, no truth anywhere.
+
+ingest (a rover's field folder or a ``glacimap-log/1`` folder) -> localize (iSAM2, with
+ground control when given) -> select (Eq 7) -> reconstruct (TerrainGP with the terrain
+layer's defaults and the satellite DEM file as prior mean, :class:`terrain.RasterMean`) ->
+certify (independent checkpoints; the 1-sigma checked on held-out samples) -> export ->
+report. ``glacimap run`` writes its simulated survey as such files and calls
+:func:`process` (docs/pipeline.md).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from factorgraph.log import MeasurementLog
+from terrain import RasterMean
+from terrain.atomic import atomic_path, ensure_writable_dir
+from terrain.errors import InputError, bad_input
+
+from .config import load_scenario
+from .export._files import staged_folder
+from .stages import (
+    certify_stage,
+    localization_summary,
+    localize_stage,
+    map_grid,
+    reconstruct_stage,
+    select_stage,
+)
+
+__all__ = ["PROCESS_STAGES", "ProcessResult", "ingest", "prior_mean", "process"]
+
+PROCESS_STAGES = ("ingest", "localize", "select", "reconstruct", "certify", "export")
+
+
+@dataclass
+class ProcessResult:
+    """What :func:`process` made: products on disk plus the in-memory objects."""
+
+    out: Path
+    settings: dict[str, Any]
+    timings: dict[str, float] = field(default_factory=dict)
+    summary: dict[str, Any] = field(default_factory=dict)
+    objects: dict[str, Any] = field(default_factory=dict)
+
+
+def ingest(log: Any, crs: Any = None) -> tuple[MeasurementLog, dict[str, Any]]:
+    """A measurement log from a :class:`MeasurementLog`, a ``glacimap-log/1`` folder
+    (``meta.json``) or a rover's field folder (``survey.json``, docs/field-format.md).
+
+    Returns the log and the ingest report (what was read, what was skipped and why)."""
+    from factorgraph.field import read_field_log
+    from factorgraph.log import read_log
+
+    if isinstance(log, MeasurementLog):
+        return log, dict(getattr(log, "ingest", None) or {})
+    folder = Path(log)
+    if (folder / "survey.json").is_file():
+        mlog, report = read_field_log(folder, crs=crs)
+        return mlog, report.as_dict()
+    if (folder / "meta.json").is_file():
+        mlog = read_log(folder)
+        return mlog, {"format": "glacimap-log/1", **dict(mlog.ingest or {})}
+    raise bad_input(
+        "LOG_DIR",
+        str(folder),
+        "a field folder with survey.json or a glacimap-log/1 folder with meta.json",
+        "see docs/field-format.md, or write one with glacimap simulate --format field",
+    )
+
+
+def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
+    """The GP prior mean: ``RasterMean(prior)`` (a + b * DEM fitted by GLS) with the
+    ``[prior]`` settings (``cells``: the paper's triangulated coarse mean; ``resampling``), or
+    a constant mean when no prior is given."""
+    if prior is None:
+        return "constant"
+    if isinstance(prior, RasterMean):
+        return prior
+    cfg = settings.get("prior", {})
+    cells = tuple(int(c) for c in cfg.get("cells", [])) or None
+    return RasterMean(prior, resampling=cfg.get("resampling", "bilinear"), cells=cells)
+
+
+def _control_and_checkpoints(control: Any, checkpoints: Any, log: MeasurementLog):
+    from factorgraph.control import ControlPoints, check_independent, read_control
+
+    from .certify_io import Checkpoints, read_checkpoints
+
+    ctrl = control
+    if control is not None and not isinstance(control, ControlPoints):
+        ctrl = read_control(control)
+    if ctrl is not None:
+        ctrl = ctrl.to_crs(log.crs)
+    cps = checkpoints
+    if checkpoints is not None and not isinstance(checkpoints, Checkpoints):
+        cps = read_checkpoints(checkpoints)
+    if ctrl is not None and cps is not None:
+        check_independent(ctrl, cps)  # ASPRS 2023: checkpoints never double as control
+    return ctrl, cps
+
+
+def process(
+    log: Any,
+    prior: Any = None,
+    control: Any = None,
+    checkpoints: Any = None,
+    config: Any = None,
+    out: str | Path = "out/process",
+    bounds: tuple[float, float, float, float] | None = None,
+    on_stage: Callable[[str, str], None] | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+    truth: Any = None,
+) -> ProcessResult:
+    """Process a survey into certified products in ``out``.
+
+    Parameters
+    ----------
+    log : path or MeasurementLog
+        A rover's field folder (``survey.json``), a ``glacimap-log/1`` folder or a log.
+    prior : path, rasterio dataset, xarray.DataArray or RasterMean, optional
+        The satellite DEM (any CRS; must cover the map): the GP's prior mean, its vertical
+        offset and scale fitted. None: a constant mean.
+    control : path or ControlPoints, optional
+        Ground control (CSV, any CRS; factorgraph.read_control).
+    checkpoints : path or Checkpoints, optional
+        Independent checkpoints (CSV, any CRS) for the certificate; never the same points as
+        the control (an error naming the point).
+    config : path or dict, optional
+        A scenario TOML (or its dict) for ``seed``, ``[localize]``, ``[select]``,
+        ``[reconstruct]``, ``[prior]``, ``[certify]``, ``[export]``; default: the embedded one.
+    out : path
+        Output folder; products appear all at once (staged), or none on failure.
+    bounds : (west, south, east, north), optional
+        Map extent in the log's CRS (m); default: the selected landmarks' bounding box.
+    on_stage, on_progress : callable, optional
+        ``on_stage(stage, "start" | "done")``; ``on_progress(k, K)`` during localization.
+    truth : xarray.DataArray, optional
+        Simulation only: the report's error map. Nothing else reads it.
+    """
+    settings = config if isinstance(config, dict) else load_scenario(config)
+    out = ensure_writable_dir(out)
+    seed = int(settings["seed"])
+    res = ProcessResult(out=out, settings=settings)
+    notify = on_stage or (lambda stage, state: None)
+
+    def stage(name: str):
+        class _Timer:
+            def __enter__(self):
+                notify(name, "start")
+                self.t = time.perf_counter()
+
+            def __exit__(self, *exc):
+                res.timings[name] = round(time.perf_counter() - self.t, 3)
+                if exc[0] is None:
+                    notify(name, "done")
+
+        return _Timer()
+
+    with stage("ingest"):
+        mlog, ingest_report = ingest(log)
+        ctrl, cps = _control_and_checkpoints(control, checkpoints, mlog)
+        mean = prior_mean(prior, settings)
+    with stage("localize"):
+        loc = localize_stage(mlog, settings, control=ctrl, progress=on_progress)
+    with stage("select"):
+        sel = select_stage(loc, settings)
+        if sel.samples.n < 3:
+            raise InputError(
+                f"only {sel.samples.n} landmarks passed the selection (counts: {sel.counts}); "
+                "a map needs at least 3: check the camera tracks and the [select] settings"
+            )
+    with stage("reconstruct"):
+        grid = map_grid(
+            bounds, float(settings["reconstruct"]["resolution_m"]), mlog.crs, sel.samples
+        )
+        kept = sel.table["kept"]
+        rec = reconstruct_stage(
+            sel.samples,
+            grid,
+            mean,
+            settings,
+            seed,
+            landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
+            landmark_rel_z_std=sel.table["z_std_m"][kept],  # relative (shared removed), Eq 7
+            shared_z_std=float(sel.shared_offset_std_m[2]),
+            heldout_folds=int(settings["certify"]["heldout_folds"]),
+        )
+    with staged_folder(out) as tmp_out:
+        from .products import write_products
+
+        with stage("certify"):
+            cert = certify_stage(rec, cps, settings, seed)
+            cert["localization"] = localization_summary(loc, sel)
+            cert["ingest"] = ingest_report
+            cert["inputs"] = {
+                "log": str(log) if not isinstance(log, MeasurementLog) else "in memory",
+                "prior": None if prior is None else str(getattr(prior, "name", prior)),
+                "control": None if ctrl is None else f"{ctrl.n} points ({ctrl.source})",
+                "checkpoints": None if cps is None else str(getattr(cps, "source", "")),
+            }
+        with stage("export"):
+            truth_on_grid = None
+            if truth is not None:
+                truth_on_grid = truth.interp(x=grid.x, y=grid.y, method="linear")
+            write_products(tmp_out, rec, cert, loc, sel, settings, truth_on_grid)
+            res.summary = {
+                "seed": seed,
+                "certificate": cert,
+                "timings_s": res.timings,
+            }
+            with atomic_path(tmp_out / "summary.json") as tmp:
+                tmp.write_text(json.dumps(res.summary, indent=2, default=_json_default))
+    res.objects = {
+        "log": mlog,
+        "localization": loc,
+        "selection": sel,
+        "reconstruction": rec,
+        "grid": grid,
+        "control": ctrl,
+        "checkpoints": cps,
+    }
+    return res
+
+
+def _json_default(o: Any):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)

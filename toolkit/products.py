@@ -1,0 +1,217 @@
+"""Write a certified map's products into a folder: the same set for ``glacimap run``,
+``glacimap process`` and the chained commands.
+
+``certificate.json``, ``product.nc`` (CF, with ``elevation``, ``elevation_std`` and
+``elevation_std_relative``), ``elevation.tif`` (COG, a band each), ``contours.gpkg``
+(+ ``.geojson``), ``mesh.ply/.vtp/.png``, ``survey.gpkg`` (trajectory and landmarks),
+``trajectory.csv``, ``landmarks.csv``, ``samples.csv`` and ``report.html``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from factorgraph.result import LocalizationResult
+from factorgraph.select import LandmarkSelection
+from terrain.atomic import atomic_path
+
+from .stages import Reconstruction
+
+__all__ = [
+    "contour_interval",
+    "landmark_table",
+    "samples_table",
+    "trajectory_table",
+    "write_csv",
+    "write_map_products",
+    "write_products",
+]
+
+
+def trajectory_table(loc: LocalizationResult) -> dict[str, np.ndarray]:
+    """One row per keyframe: ``k, t_s``, final estimate ``x, y, z`` (projected CRS, m), its
+    marginal 1-sigma ``std_x, std_y, std_z`` (m), the online estimate ``online_x, online_y,
+    online_z``, the estimated GPS bias ``bias_x, bias_y, bias_z`` (bias model) and, in
+    simulation, the truth ``true_x, true_y, true_z``."""
+    log = loc.log
+    est = loc.to_projected(loc.keyframe_xyz)
+    online = loc.to_projected(loc.online_xyz)
+    std = np.sqrt(np.clip(np.diagonal(loc.pose_cov_xyz, axis1=1, axis2=2), 0.0, None))
+    out: dict[str, np.ndarray] = {"k": np.arange(log.n_keyframes), "t_s": log.t}
+    for prefix, arr in (("", est), ("std_", std), ("online_", online)):
+        for i, a in enumerate("xyz"):
+            out[f"{prefix}{a}"] = arr[:, i]
+    if loc.gps_bias is not None:
+        for i, a in enumerate("xyz"):
+            out[f"bias_{a}"] = loc.gps_bias[:, i]
+    if log.has_truth:
+        true = loc.to_projected(log.truth["xyz"])
+        for i, a in enumerate("xyz"):
+            out[f"true_{a}"] = true[:, i]
+    return out
+
+
+def landmark_table(loc: LocalizationResult, sel: LandmarkSelection) -> dict[str, np.ndarray]:
+    """One row per landmark in the graph: the selection's diagnostics (``landmark_id, x, y, z,
+    sigma_max_m, sigma_max_full_m, z_std_m, first_seen_distance_m, n_views, kept, reason``)
+    and, in simulation, the true position ``true_x, true_y, true_z`` (projected CRS, m)."""
+    out = dict(sel.table)
+    if "landmark_xyz" in loc.log.truth and loc.n_landmarks:
+        true = loc.to_projected(loc.true_landmarks())
+        for i, a in enumerate("xyz"):
+            out[f"true_{a}"] = true[:, i]
+    return out
+
+
+def samples_table(sel: LandmarkSelection) -> dict[str, np.ndarray]:
+    """The selected landmarks as terrain samples ``x, y, z, z_var`` (m, m^2) plus what the
+    error budget needs (:mod:`toolkit.error_budget`): ``track_z_std_m`` (relative vertical
+    1-sigma, m) and the survey's ``shared_offset_std_m`` (m, one value repeated). It is the
+    table ``glacimap reconstruct SAMPLES.csv`` reads, so the chained commands give the same
+    1-sigma as ``glacimap run`` / ``process``."""
+    s, kept = sel.samples, sel.table["kept"]
+    track = sel.table["z_std_m"][kept] if kept.sum() == s.n else np.sqrt(s.z_var)
+    shared = float(sel.shared_offset_std_m[2])
+    return {
+        "x": s.xy[:, 0],
+        "y": s.xy[:, 1],
+        "z": s.z,
+        "z_var": s.z_var,
+        "track_z_std_m": track,  # relative vertical 1-sigma: the along-track error term
+        "shared_offset_std_m": np.full(s.n, shared),
+    }
+
+
+def write_csv(path: Path, table: dict[str, np.ndarray]) -> Path:
+    """A dict of equal-length columns as CSV (header row), atomically."""
+    cols = list(table)
+    rows = np.column_stack([np.asarray(table[c]).astype(str) for c in cols])
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(",".join(cols) + "\n")
+            for r in rows:
+                f.write(",".join(r) + "\n")
+    return path
+
+
+def contour_interval(cert: dict[str, Any], fallback_rmse_m: float | None) -> float:
+    """The certified interval, or (no checkpoints) 3 x the held-out RMSE rounded up to a
+    conventional interval (ASPRS 1990 Class 1, CI = 3 RMSE_z), stated as uncertified."""
+    from .certify import CONVENTIONAL_INTERVALS_M
+
+    ci = (cert.get("contour_interval") or {}).get("certified_m")
+    if ci:
+        return float(ci)
+    rmse = float(fallback_rmse_m or 1.0)
+    ci = next((c for c in CONVENTIONAL_INTERVALS_M if c >= 3 * rmse), 3 * rmse)
+    cert["contour_interval"] = {
+        "certified_m": None,
+        "uncertified_m": float(ci),
+        "basis": "3 x held-out RMSE (no checkpoints: not certified)",
+    }
+    return float(ci)
+
+
+def write_map_products(
+    out: Path,
+    rec: Reconstruction,
+    cert: dict[str, Any] | None,
+    settings: dict[str, Any],
+    truth_on_grid: Any = None,
+    samples_xy: np.ndarray | None = None,
+    trajectory: dict[str, Any] | None = None,
+    coverage: dict[str, Any] | None = None,
+) -> dict[str, Path]:
+    """The map's products in ``out``: ``product.nc``, ``elevation.tif`` (COG: elevation,
+    total and relative 1-sigma), contours, mesh and, with a certificate, ``certificate.json``
+    and ``report.html``. Without checkpoints the contour interval is 3 x the held-out RMSE,
+    marked uncertified."""
+    from .certify import write_certificate
+    from .export import write_cog, write_contours, write_mesh
+    from .report import write_report
+
+    product = rec.product
+    heldout_rmse = None if rec.heldout is None else rec.heldout.pooled["rmse_m"]
+    cert = cert if cert is not None else {}
+    interval = contour_interval(cert, heldout_rmse)
+    paths: dict[str, Path] = {}
+    with atomic_path(out / "product.nc") as tmp:
+        product.to_netcdf(tmp, engine="scipy")
+    paths["product"] = out / "product.nc"
+    paths["cog"] = write_cog(product, out / "elevation.tif")
+    exp = settings["export"]
+    geojson = out / "contours.geojson" if exp["geojson"] else None
+    paths["contours"] = write_contours(product, out / "contours.gpkg", interval, geojson)
+    if exp["mesh"]:
+        write_mesh(product, out / "mesh.ply", out / "mesh.vtp", out / "mesh.png")
+    if cert.get("accuracy") or cert.get("heldout_calibration"):
+        paths["certificate"] = write_certificate(cert, out / "certificate.json")
+        if cert.get("accuracy"):  # the HTML certificate needs checkpoints
+            paths["report"] = write_report(
+                out / "report.html",
+                product=product,
+                certificate=cert,
+                truth=truth_on_grid,
+                samples=rec.samples if samples_xy is None else samples_xy,
+                trajectory=trajectory,
+                coverage=coverage,
+            )
+    return paths
+
+
+def write_products(
+    out: Path,
+    rec: Reconstruction,
+    cert: dict[str, Any],
+    loc: LocalizationResult,
+    sel: LandmarkSelection,
+    settings: dict[str, Any],
+    truth_on_grid: Any = None,
+) -> dict[str, Path]:
+    """Every product of a processed survey in ``out``: the map's
+    (:func:`write_map_products`) plus ``survey.gpkg`` (trajectory, landmarks),
+    ``trajectory.csv``, ``landmarks.csv`` and ``samples.csv``.
+
+    ``truth_on_grid`` (simulation only) adds the error map and the truth calibration curve to
+    the report; nothing else reads the truth.
+    """
+    from .export import VectorLayer, write_vector_layers
+
+    est = loc.to_projected(loc.keyframe_xyz)
+    t = sel.table
+    lines, kinds = [est], ["estimated"]
+    if loc.log.has_truth:
+        lines.append(loc.to_projected(loc.log.truth["xyz"]))
+        kinds.append("true")
+    layers = {
+        "trajectory": VectorLayer.lines(lines, kind=np.array(kinds)),
+        "landmarks": VectorLayer.points(
+            np.column_stack([t["x"], t["y"], t["z"]]),
+            landmark_id=t["landmark_id"],
+            z_std=t["z_std_m"],
+            sigma_max=t["sigma_max_m"],
+            n_views=t["n_views"],
+            kept=t["kept"],
+        ),
+    }
+    paths = {"survey": write_vector_layers(out / "survey.gpkg", layers, loc.log.crs)}
+    write_csv(out / "trajectory.csv", trajectory_table(loc))
+    write_csv(out / "landmarks.csv", landmark_table(loc, sel))
+    write_csv(out / "samples.csv", samples_table(sel))
+    trajectory = {
+        "xy_est": est[:, :2],
+        "xy_true": lines[1][:, :2] if len(lines) > 1 else None,
+        "cov_xy": loc.pose_cov_xyz[:, :2, :2],
+        "landmarks_xy": sel.samples.xy,
+    }
+    loc_summary = cert.get("localization", {})
+    coverage = {k: v for k, v in loc_summary.items() if np.isscalar(v)}
+    paths.update(
+        write_map_products(
+            out, rec, cert, settings, truth_on_grid, sel.samples, trajectory, coverage
+        )
+    )
+    return paths

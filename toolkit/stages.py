@@ -1,0 +1,255 @@
+"""The stages every survey goes through, simulated or real: localize -> select -> reconstruct
+-> certify. Typed inputs and outputs; no stage reads the truth.
+
+``glacimap run`` (:func:`toolkit.pipeline.run_scenario`) writes a simulated survey as field
+files and calls :func:`toolkit.process.process`, which chains these stages; ``glacimap
+localize`` / ``reconstruct`` / ``certify`` call the same functions, so the chained commands
+and ``process`` give the same products and the same 1-sigma (docs/pipeline.md).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from factorgraph.evaluate import frame_floor, horizontal_floor
+from factorgraph.localize import LocalizeParams, localize
+from factorgraph.log import MeasurementLog
+from factorgraph.result import LocalizationResult
+from factorgraph.select import LandmarkSelection, select_landmarks
+from terrain import ElevationSamples, Grid, TerrainGP, cross_validate
+from terrain.errors import bad_input
+
+from .error_budget import inflate_std
+
+__all__ = [
+    "Reconstruction",
+    "certify_stage",
+    "localization_summary",
+    "localize_stage",
+    "map_grid",
+    "reconstruct_stage",
+    "select_stage",
+]
+
+
+def localize_stage(
+    log: MeasurementLog,
+    settings: dict[str, Any],
+    control: Any = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> LocalizationResult:
+    """iSAM2 over ``log`` with the ``[localize]`` settings and optional ground control."""
+    return localize(log, LocalizeParams(**settings["localize"]), progress=progress, control=control)
+
+
+def select_stage(loc: LocalizationResult, settings: dict[str, Any]) -> LandmarkSelection:
+    """The paper's landmark rules with the ``[select]`` settings (Eq 7)."""
+    sel = settings["select"]
+    return select_landmarks(
+        loc,
+        max_sigma=float(sel["max_sigma_m"]),
+        min_first_seen_distance=float(sel["min_first_seen_distance_m"]),
+        variance=sel["variance"],
+        rule=sel["rule"],
+    )
+
+
+def map_grid(
+    bounds: tuple[float, float, float, float] | None,
+    resolution: float,
+    crs: Any,
+    samples: ElevationSamples | None = None,
+) -> Grid:
+    """The map grid: ``bounds`` (west, south, east, north; m) or, when None, the samples'
+    bounding box snapped outwards to whole cells."""
+    if bounds is None:
+        if samples is None or samples.n == 0:
+            raise bad_input("bounds", None, "map bounds or samples", "pass --bounds W S E N")
+        lo = np.floor(samples.xy.min(axis=0) / resolution) * resolution
+        hi = np.ceil(samples.xy.max(axis=0) / resolution) * resolution
+        hi = np.maximum(hi, lo + resolution)
+        bounds = (lo[0], lo[1], hi[0], hi[1])
+    return Grid.from_bounds(tuple(float(b) for b in bounds), float(resolution), crs)
+
+
+@dataclass
+class Reconstruction:
+    """What the reconstruct stage made: the product and how it was made."""
+
+    product: Any  # xarray.Dataset: elevation, elevation_std, elevation_std_relative
+    gp: TerrainGP
+    samples: ElevationSamples
+    heldout: Any = None  # terrain.CrossValidation
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def reconstruct_stage(
+    samples: ElevationSamples,
+    grid: Grid,
+    mean: Any,
+    settings: dict[str, Any],
+    seed: int,
+    landmark_xy: np.ndarray | None = None,
+    landmark_rel_z_std: np.ndarray | None = None,
+    shared_z_std: float = 0.0,
+    heldout_folds: int = 5,
+) -> Reconstruction:
+    """The GP map (the terrain layer's defaults: kernel by evidence) with its error budget.
+
+    Parameters
+    ----------
+    samples : ElevationSamples
+        Selected landmarks as terrain samples (``z_var``: relative vertical variance, m^2).
+    grid : Grid
+        Map cells, in the samples' CRS.
+    mean : prior mean
+        A :class:`terrain.RasterMean` (satellite DEM file), ``"constant"``, or any mean
+        :class:`terrain.TerrainGP` accepts.
+    settings : dict
+        The ``[reconstruct]`` table: ``method``, ``max_fit_samples``, ``n_restarts``.
+    seed : int
+        The one seed.
+    landmark_xy, landmark_rel_z_std : ndarray, optional
+        Landmarks and their relative vertical 1-sigma (m) for the along-track error term
+        (:mod:`toolkit.error_budget`); default: the samples and ``sqrt(z_var)``.
+    shared_z_std : float
+        1-sigma of the survey's map-wide vertical offset (m), stated once in the product.
+    heldout_folds : int
+        Spatial-block folds of :func:`terrain.cross_validate` (0: skip the held-out check).
+
+    Returns
+    -------
+    Reconstruction
+        ``product`` has ``elevation``, ``elevation_std`` (total: GP + along-track + shared
+        offset) and ``elevation_std_relative`` (the map's own: without the shared offset, so
+        data gaps show), all in metres.
+    """
+    rc = settings["reconstruct"]
+    gp = TerrainGP(
+        mean=mean,  # kernel="auto": the family member with the best evidence (BIC)
+        method=rc["method"],
+        max_fit_samples=int(rc["max_fit_samples"]),
+        n_restarts=int(rc["n_restarts"]),
+        seed=seed,
+    ).fit(samples)
+    if landmark_xy is None:
+        landmark_xy, landmark_rel_z_std = samples.xy, np.sqrt(samples.z_var)
+    from terrain.gp_mean import n_coef
+
+    fitted_offset = n_coef(gp.mean_) > 0  # the prior's datum offset is fitted to the samples
+    product = inflate_std(
+        gp.predict_grid(grid),
+        gp,
+        landmark_xy,
+        landmark_rel_z_std,
+        shared_z_std,
+        shared_everywhere=fitted_offset,
+    )
+    product.attrs.update(
+        {
+            "seed": int(seed),
+            "shared_vertical_offset_std_m": float(shared_z_std),
+            "n_landmarks_selected": int(samples.n),
+            "predict_route": str(getattr(gp, "predict_route_", "")),
+        }
+    )
+    heldout = None
+    if heldout_folds and samples.n >= 4 * heldout_folds:
+        heldout = cross_validate(gp, samples, n_folds=int(heldout_folds), seed=seed)
+    return Reconstruction(product=product, gp=gp, samples=samples, heldout=heldout)
+
+
+def certify_stage(
+    rec: Reconstruction,
+    checkpoints: Any,
+    settings: dict[str, Any],
+    seed: int,
+) -> dict[str, Any]:
+    """Certify ``rec.product`` against independent checkpoints (none: held-out check only).
+
+    Returns the certificate dict (:func:`toolkit.certify.certify`) with the kernel chosen by
+    evidence and its rivals under ``reconstruction``.
+    """
+    from .certify import certify, heldout_block
+
+    cfg = settings["certify"]
+    product = rec.product
+    if checkpoints is not None:
+        cert = certify(
+            product, checkpoints, seed=seed, n_boot=int(cfg["n_boot"]), heldout=rec.heldout
+        )
+    else:  # no checkpoints: the map's sigma is still checked on held-out samples
+        cert = {"seed": int(seed), "checkpoints": None, "warnings": ["no checkpoints given"]}
+        if rec.heldout is not None:
+            cert["heldout_calibration"] = heldout_block(rec.heldout)
+    cert["reconstruction"] = {
+        "kernel": product.attrs.get("kernel"),
+        "kernel_selection": json.loads(product.attrs.get("kernel_selection", "[]")),
+        "mean_function": product.attrs.get("mean_function"),
+        "mean_coefficients": json.loads(product.attrs.get("mean_coefficients", "{}")),
+        "predict_route": product.attrs.get("predict_route"),
+        "shared_vertical_offset_std_m": product.attrs.get("shared_vertical_offset_std_m"),
+    }
+    return cert
+
+
+def localization_summary(loc: LocalizationResult, sel: LandmarkSelection) -> dict[str, Any]:
+    """Counts, timings and (in simulation) errors of one localization + selection, as plain
+    JSON values: keyframes, duration, horizontal / vertical RMSE of the keyframes against the
+    truth (m), iSAM2 step median / p95 and marginal times (s), landmarks in the graph and
+    selected, the shared-offset 1-sigma (m), the selection counts, rebuilds and landmark NEES.
+
+    Without truth too: ``predicted_horizontal_rmse_m`` (what the keyframe marginals predict,
+    sqrt of their mean horizontal trace), ``horizontal_floor_m`` (the mean GPS bias floor) and
+    ``frame_floor_m`` (:func:`factorgraph.evaluate.frame_floor` on the estimated path: the
+    best any estimator of this GPS and relative sensors can expect on this traverse)."""
+    log = loc.log
+    out: dict[str, Any] = {"keyframes": log.n_keyframes, "duration_s": log.duration_s}
+    pose_h = loc.pose_cov_xyz[:, :2, :2]
+    out["predicted_horizontal_rmse_m"] = float(np.sqrt(np.mean(np.trace(pose_h, 0, 1, 2))))
+    if log.gps_k.size and log.duration_s > 0:
+        gps, xyz = log.sensors.gps, loc.keyframe_xyz
+        out["horizontal_floor_m"] = horizontal_floor(gps, log.duration_s)
+        out["frame_floor_m"] = frame_floor(
+            gps,
+            log.t[log.gps_k],
+            xyz[log.gps_k],
+            xyz,
+            scale_sigma=log.sensors.odometry.scale_error_sigma,
+        )
+    if log.has_truth:
+        err = loc.keyframe_xyz - log.truth["xyz"]
+        out["horizontal_rmse_m"] = float(np.sqrt((err[:, :2] ** 2).sum(1).mean()))
+        out["vertical_rmse_m"] = float(np.sqrt((err[:, 2] ** 2).mean()))
+    out.update(
+        {
+            "step_median_s": float(np.median(loc.step_s)),
+            "step_p95_s": float(np.percentile(loc.step_s, 95)),
+            "marginals_s": float(loc.marginal_s),
+            "landmarks_in_graph": loc.n_landmarks,
+            "landmarks_selected": int(sel.counts["kept"]),
+            "shared_offset_std_m": [float(v) for v in sel.shared_offset_std_m],
+            "selection_counts": sel.counts,
+            "isam2_rebuilds": loc.n_rebuilds,
+        }
+    )
+    # GPS records not used, by reason: the field reader's counts (factorgraph.field) and the
+    # gross outliers localize gated (factorgraph/field/gate.py)
+    skipped = dict(log.ingest.get("gps_skipped", {}))
+    if log.ingest.get("gps_gross_outliers_gated"):
+        gated = int(log.ingest["gps_gross_outliers_gated"])
+        skipped["gross_outlier"] = int(skipped.get("gross_outlier", 0)) + gated
+    out["gps_used"] = int(log.gps_k.size)
+    out["gps_skipped"] = skipped
+    if getattr(loc, "control", None):
+        out["control"] = loc.control  # which ground control was used, and its residuals
+    if "landmark_xyz" in log.truth and loc.n_landmarks:
+        e = loc.landmark_xyz - loc.true_landmarks()
+        nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])
+        out["landmark_nees_mean"] = float(nees.mean())
+    return out
