@@ -51,26 +51,74 @@ def test_cli_csv_reconstruction_roundtrip(tmp_path):
         header="x,y,z,z_var",
         comments="",
     )
+    args = ["reconstruct", str(csv), "--resolution", "10", "--out", str(tmp_path / "o")]
+    res = runner.invoke(app, [*args, "--crs", "EPSG:32608"])
+    assert res.exit_code == 0, res.output
+    ds = xr.open_dataset(tmp_path / "o" / "product.nc", engine="scipy")
+    assert {"elevation", "elevation_std", "elevation_std_relative"} <= set(ds.data_vars)
+    assert ds.attrs["seed"] == 0
+    assert float(np.abs(ds.elevation - (100 + 0.05 * (ds.x - 526000))).max()) < 0.2
+    # The same products as glacimap run: COG with the sigma bands, contours; no checkpoints,
+    # so the sigma is checked on held-out samples (certificate) but no HTML report.
+    names = {p.name for p in (tmp_path / "o").iterdir()}
+    assert {"elevation.tif", "contours.gpkg", "mesh.ply", "certificate.json"} <= names
+
+
+def test_cli_never_guesses_the_crs_and_projects_lon_lat(tmp_path):
+    from pyproj import Transformer
+
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(0, 200, (120, 2)) + [526000, 6475000]
+    z = 100 + 0.05 * (xy[:, 0] - 526000)
+    lon, lat = Transformer.from_crs("EPSG:32608", "EPSG:4326", always_xy=True).transform(
+        xy[:, 0], xy[:, 1]
+    )
+    csv = tmp_path / "ll.csv"
+    np.savetxt(
+        csv,
+        np.column_stack([lon, lat, z]),
+        delimiter=",",
+        header="lon,lat,height",
+        comments="",
+        fmt="%.9f",
+    )
+    res = runner.invoke(app, ["reconstruct", str(csv), "--out", str(tmp_path / "a")])
+    assert res.exit_code != 0 and "--crs" in str(res.exception)  # never guessed
+    assert not (tmp_path / "a" / "product.nc").exists()
     res = runner.invoke(
-        app, ["reconstruct", str(csv), "--resolution", "10", "--out", str(tmp_path / "o")]
+        app,
+        [
+            "reconstruct",
+            str(csv),
+            "--crs",
+            "EPSG:4326",
+            "--resolution",
+            "10",
+            "--out",
+            str(tmp_path / "b"),
+        ],
     )
     assert res.exit_code == 0, res.output
-    ds = xr.open_dataset(tmp_path / "o" / "reconstruction.nc", engine="scipy")
-    assert set(ds.data_vars) == {"elevation", "elevation_std"} and ds.attrs["seed"] == 0
-    assert float(np.abs(ds.elevation - (100 + 0.05 * (ds.x - 526000))).max()) < 0.2
+    assert "projected to EPSG:32608" in res.output  # its UTM zone, said in words
+    import xarray as xr
+
+    ds = xr.open_dataset(tmp_path / "b" / "product.nc", engine="scipy")
+    assert ds.sizes["x"] > 10 and ds.sizes["y"] > 10  # a map, not one cell
 
 
 def test_cli_bad_input_exit_codes(tmp_path):
     bad = tmp_path / "bad.csv"
-    bad.write_text("x,y,elev\n1,2,3\n4,5,6\n7,8,9\n")
+    bad.write_text("x,y,foo\n1,2,3\n4,5,6\n7,8,9\n")
     cmd = [sys.executable, "-m", "toolkit", "reconstruct"]
     out = subprocess.run(
-        [*cmd, str(bad), "--out", str(tmp_path / "o")], capture_output=True, text=True
+        [*cmd, str(bad), "--crs", "EPSG:32608", "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
     )
-    assert out.returncode == 2 and "missing ['z']" in out.stderr
+    assert out.returncode == 2 and "z" in out.stderr and "foo" in out.stderr
     out = subprocess.run(cmd + ["--out", str(tmp_path / "o")], capture_output=True, text=True)
     assert out.returncode == 2 and "exactly one of" in out.stderr
-    assert not (tmp_path / "o" / "reconstruction.nc").exists()
+    assert not (tmp_path / "o" / "product.nc").exists()
 
 
 @pytest.mark.slow

@@ -46,6 +46,10 @@ PRODUCTS = {
     "contours.geojson",
     "contours.gpkg",
     "elevation.tif",
+    "field",  # the simulated survey as field files (glacimap process reads them)
+    "landmarks.csv",
+    "samples.csv",
+    "trajectory.csv",
     "mesh.ply",
     "mesh.png",
     "mesh.vtp",
@@ -94,7 +98,8 @@ def test_cog_read_by_gdalinfo_and_validator(run, product):
 
     path = run / "elevation.tif"
     info = json.loads(subprocess.check_output(["gdalinfo", "-json", str(path)]))
-    assert [b["description"] for b in info["bands"]] == ["elevation", "elevation_std"]
+    names = [b["description"] for b in info["bands"]]
+    assert names == ["elevation", "elevation_std", "elevation_std_relative"]
     assert {str(b["noDataValue"]).lower() for b in info["bands"]} == {"nan"}
     assert {b["unit"] for b in info["bands"]} == {"m"}
     assert info["stac"]["proj:epsg"] == 32608
@@ -111,7 +116,8 @@ def test_cog_read_by_gdalinfo_and_validator(run, product):
     assert out.strip() == "([], [])", out
     with rasterio.open(path) as src:
         data = src.read()
-    expected = np.stack([product.elevation.values, product.elevation_std.values])
+    names = ("elevation", "elevation_std", "elevation_std_relative")
+    expected = np.stack([product[n].values for n in names])
     np.testing.assert_array_equal(data, expected.astype(np.float32))
 
 

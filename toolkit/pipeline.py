@@ -12,11 +12,14 @@ the certificate's ``truth_metrics``).
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from factorgraph.log import MeasurementLog
 from factorgraph.sensors import SensorSuite
@@ -133,8 +136,6 @@ def truth_metrics(truth, res_process, scenario: dict[str, Any]) -> dict[str, dic
 
 def _offset_error(rec, truth_on_grid) -> float:
     """The map's mean error where it leans on the data (the shared survey offset's draw)."""
-    import numpy as np
-
     err = rec.product["elevation"].values - truth_on_grid
     w = rec.product["elevation_std_relative"].values < np.nanpercentile(
         rec.product["elevation_std_relative"].values, 50
@@ -186,19 +187,27 @@ def run_scenario(
         log = simulate_log(scenario, truth, plan)
         return write_field_survey(scenario, truth, log, out / "field")
 
+    fresh = not (out / "field").exists()
     survey = timed("simulate", _simulate)
-    pres = process(
-        survey.rover,
-        prior=survey.prior,
-        control=survey.control,
-        checkpoints=survey.checkpoints,
-        config=scenario,
-        out=out,
-        bounds=tuple(float(v) for v in scenario["site"]["bounds"]),
-        on_stage=on_stage,
-        on_progress=on_progress,
-        truth=truth,
-    )
+    true_path = survey.log.truth["xyz"] + np.r_[survey.log.origin, 0.0]
+    try:
+        pres = process(
+            survey.rover,
+            prior=survey.prior,
+            control=survey.control,
+            checkpoints=survey.checkpoints,
+            config=scenario,
+            out=out,
+            bounds=tuple(float(v) for v in scenario["site"]["bounds"]),
+            on_stage=on_stage,
+            on_progress=on_progress,
+            truth=truth,
+            truth_path=true_path,
+        )
+    except BaseException:  # Ctrl-C included: a failed run leaves no half set of files
+        if fresh:
+            shutil.rmtree(out / "field", ignore_errors=True)
+        raise
     res.timings.update(pres.timings)
     t = time.perf_counter()
     metrics = truth_metrics(truth, pres, scenario)
@@ -238,8 +247,6 @@ def run_scenario(
 def _localization_truth(loc, sim_log: MeasurementLog) -> dict[str, float]:
     """Keyframe errors of the processed (field-file) localization against the simulation's
     true path, matched by keyframe time (the field log keeps the rover clock)."""
-    import numpy as np
-
     if not sim_log.has_truth or loc.log.n_keyframes != sim_log.n_keyframes:
         return {}
     true = sim_log.truth["xyz"] + np.r_[sim_log.origin - loc.log.origin, 0.0]

@@ -118,6 +118,7 @@ def process(
     on_stage: Callable[[str, str], None] | None = None,
     on_progress: Callable[[int, int], None] | None = None,
     truth: Any = None,
+    truth_path: Any = None,
 ) -> ProcessResult:
     """Process a survey into certified products in ``out``.
 
@@ -142,8 +143,9 @@ def process(
         Map extent in the log's CRS (m); default: the selected landmarks' bounding box.
     on_stage, on_progress : callable, optional
         ``on_stage(stage, "start" | "done")``; ``on_progress(k, K)`` during localization.
-    truth : xarray.DataArray, optional
-        Simulation only: the report's error map. Nothing else reads it.
+    truth, truth_path : xarray.DataArray, ndarray of shape (n, 3), optional
+        Simulation only: the report's error map and the true path layer. Nothing else reads
+        them.
     """
     settings = config if isinstance(config, dict) else load_scenario(config)
     out = ensure_writable_dir(out)
@@ -210,7 +212,7 @@ def process(
             truth_on_grid = None
             if truth is not None:
                 truth_on_grid = truth.interp(x=grid.x, y=grid.y, method="linear")
-            write_products(tmp_out, rec, cert, loc, sel, settings, truth_on_grid)
+            write_products(tmp_out, rec, cert, loc, sel, settings, truth_on_grid, truth_path)
             res.summary = {
                 "seed": seed,
                 "certificate": cert,

@@ -138,27 +138,29 @@ def write_map_products(
     cert = cert if cert is not None else {}
     interval = contour_interval(cert, heldout_rmse)
     paths: dict[str, Path] = {}
+    certified = bool(cert.get("accuracy") or cert.get("heldout_calibration"))
+    if certified:
+        paths["certificate"] = write_certificate(cert, out / "certificate.json")
     with atomic_path(out / "product.nc") as tmp:
         product.to_netcdf(tmp, engine="scipy")
     paths["product"] = out / "product.nc"
     paths["cog"] = write_cog(product, out / "elevation.tif")
     exp = settings["export"]
     geojson = out / "contours.geojson" if exp["geojson"] else None
-    paths["contours"] = write_contours(product, out / "contours.gpkg", interval, geojson)
+    write_contours(product, out / "contours.gpkg", interval, geojson)
+    paths["contours"] = out / "contours.gpkg"
     if exp["mesh"]:
         write_mesh(product, out / "mesh.ply", out / "mesh.vtp", out / "mesh.png")
-    if cert.get("accuracy") or cert.get("heldout_calibration"):
-        paths["certificate"] = write_certificate(cert, out / "certificate.json")
-        if cert.get("accuracy"):  # the HTML certificate needs checkpoints
-            paths["report"] = write_report(
-                out / "report.html",
-                product=product,
-                certificate=cert,
-                truth=truth_on_grid,
-                samples=rec.samples if samples_xy is None else samples_xy,
-                trajectory=trajectory,
-                coverage=coverage,
-            )
+    if certified and cert.get("accuracy"):  # the HTML certificate needs checkpoints
+        paths["report"] = write_report(
+            out / "report.html",
+            product=product,
+            certificate=cert,
+            truth=truth_on_grid,
+            samples=rec.samples if samples_xy is None else samples_xy,
+            trajectory=trajectory,
+            coverage=coverage,
+        )
     return paths
 
 
@@ -170,21 +172,24 @@ def write_products(
     sel: LandmarkSelection,
     settings: dict[str, Any],
     truth_on_grid: Any = None,
+    truth_path: np.ndarray | None = None,
 ) -> dict[str, Path]:
     """Every product of a processed survey in ``out``: the map's
     (:func:`write_map_products`) plus ``survey.gpkg`` (trajectory, landmarks),
     ``trajectory.csv``, ``landmarks.csv`` and ``samples.csv``.
 
-    ``truth_on_grid`` (simulation only) adds the error map and the truth calibration curve to
-    the report; nothing else reads the truth.
+    ``truth_on_grid`` and ``truth_path`` ((n, 3) projected true keyframe positions) are for
+    simulation only: the report's error map and calibration curve, the true path layer.
     """
     from .export import VectorLayer, write_vector_layers
 
     est = loc.to_projected(loc.keyframe_xyz)
     t = sel.table
     lines, kinds = [est], ["estimated"]
-    if loc.log.has_truth:
-        lines.append(loc.to_projected(loc.log.truth["xyz"]))
+    if truth_path is None and loc.log.has_truth:
+        truth_path = loc.to_projected(loc.log.truth["xyz"])
+    if truth_path is not None:
+        lines.append(np.asarray(truth_path, float))
         kinds.append("true")
     layers = {
         "trajectory": VectorLayer.lines(lines, kind=np.array(kinds)),

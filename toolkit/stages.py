@@ -22,7 +22,7 @@ from factorgraph.log import MeasurementLog
 from factorgraph.result import LocalizationResult
 from factorgraph.select import LandmarkSelection, select_landmarks
 from terrain import ElevationSamples, Grid, TerrainGP, cross_validate
-from terrain.errors import bad_input
+from terrain.errors import InputError, bad_input
 
 from .error_budget import inflate_std
 
@@ -158,9 +158,16 @@ def reconstruct_stage(
             "predict_route": str(getattr(gp, "predict_route_", "")),
         }
     )
-    heldout = None
-    if heldout_folds and samples.n >= 4 * heldout_folds:
-        heldout = cross_validate(gp, samples, n_folds=int(heldout_folds), seed=seed)
+    heldout, why = None, "heldout_folds = 0"
+    if heldout_folds:
+        try:
+            heldout = cross_validate(gp, samples, n_folds=int(heldout_folds), seed=seed)
+            why = ""
+        except InputError as exc:  # too few samples or blocks: said, not fatal
+            why = str(exc)
+    product.attrs["heldout_check"] = (
+        "spatial block CV" if heldout is not None else f"skipped: {why}"
+    )
     return Reconstruction(product=product, gp=gp, samples=samples, heldout=heldout)
 
 

@@ -11,30 +11,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from terrain import ElevationSamples, Grid
 from terrain.atomic import atomic_path, ensure_writable_dir
 from terrain.errors import bad_input
 
 console = Console()
-
-
-def _read_samples_csv(path: Path, crs: str) -> ElevationSamples:
-    """CSV with a header naming x, y, z and optionally z_var (metres, m^2)."""
-    if not path.is_file():
-        raise bad_input("SAMPLES", str(path), "an existing CSV file", "check the path")
-    data = np.genfromtxt(path, delimiter=",", names=True, dtype=float, encoding="utf-8")
-    names = data.dtype.names or ()
-    missing = [c for c in ("x", "y", "z") if c not in names]
-    if missing:
-        raise bad_input(
-            f"{path.name} columns",
-            list(names),
-            f"columns x, y, z[, z_var]; missing {missing}",
-            "rename the header",
-        )
-    data = np.atleast_1d(data)
-    z_var = data["z_var"] if "z_var" in names else 0.0
-    return ElevationSamples(np.column_stack([data["x"], data["y"]]), data["z"], z_var, crs=crs)
 
 
 def _print_demo(result) -> None:
@@ -70,20 +50,44 @@ def _print_demo(result) -> None:
 
 def reconstruct(
     samples: Annotated[
-        Path | None, typer.Argument(help="CSV with columns x, y, z[, z_var] (m, m^2).")
+        Path | None,
+        typer.Argument(
+            help="CSV: x, y, z[, z_var, track_z_std_m, shared_offset_std_m] (aliases allowed)."
+        ),
     ] = None,
     demo: Annotated[bool, typer.Option(help="Run on the embedded default site.")] = False,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/reconstruct"),
     seed: Annotated[int, typer.Option(help="The one seed of the run.")] = 0,
     n_samples: Annotated[int, typer.Option(help="Demo: landmarks to draw.")] = 5000,
     resolution: Annotated[float, typer.Option(help="Cell size of the map, m.")] = 4.0,
-    crs: Annotated[str, typer.Option(help="CRS of the CSV coordinates.")] = "EPSG:32608",
+    crs: Annotated[
+        str | None,
+        typer.Option(help="CRS of the CSV coordinates, when no crs column or sidecar names it."),
+    ] = None,
+    prior: Annotated[
+        Path | None,
+        typer.Option("--prior", help="Satellite DEM as the GP prior mean (any CRS)."),
+    ] = None,
+    bounds: Annotated[
+        tuple[float, float, float, float] | None,
+        typer.Option("--bounds", help="Map extent W S E N (m, the samples' CRS)."),
+    ] = None,
+    like: Annotated[
+        Path | None, typer.Option("--like", help="Take the map grid from this raster.")
+    ] = None,
+    checkpoints: Annotated[
+        Path | None, typer.Option("--checkpoints", help="Independent checkpoints: certify.")
+    ] = None,
+    config: Annotated[
+        Path | None, typer.Option("--config", help="Settings TOML ([reconstruct], [prior]...).")
+    ] = None,
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
     With --demo: the paper's Fig. 5 comparison (GP + satellite prior, constant-mean GP,
-    Delaunay) on the default 600 m x 600 m site, printed as a table, with a PNG figure and a
-    JSON summary in --out. With a CSV: a NetCDF map with elevation and elevation_std.
+    Delaunay) on the default 600 m x 600 m site. With a CSV: the same model and products as
+    glacimap run / process (kernel by evidence, the prior DEM's offset fitted, total and
+    relative 1-sigma, COG, contours, mesh; a certificate and report with --checkpoints).
     """
     if demo == (samples is not None):
         raise bad_input(
@@ -92,31 +96,102 @@ def reconstruct(
             "exactly one of a CSV path or --demo",
             "pass a CSV file, or --demo",
         )
+    if bounds is not None and like is not None:
+        raise bad_input("--bounds / --like", "both", "at most one", "pass one of them")
     out_dir = ensure_writable_dir(out)
     if demo:
-        from ..demo import reconstruction_demo
-        from ..figures import plot_demo
-
-        with console.status("reconstructing the default site..."):
-            result = reconstruction_demo(seed=seed, n_samples=n_samples, resolution=resolution)
-        _print_demo(result)
-        png = plot_demo(result, out_dir / "demo.png")
-        with atomic_path(out_dir / "demo_summary.json") as tmp:
-            tmp.write_text(json.dumps(result.summary(), indent=2))
-        console.print(f"wrote {png} and {out_dir / 'demo_summary.json'}")
+        _run_demo(out_dir, seed, n_samples, resolution)
         return
-
-    from terrain.gp import TerrainGP
-
-    data = _read_samples_csv(samples, crs)
-    w, s = data.xy.min(axis=0)
-    e, n = data.xy.max(axis=0)
-    grid = Grid.from_bounds(
-        (w, s, max(e, w + resolution), max(n, s + resolution)), resolution, crs=crs
+    _reconstruct_csv(
+        samples, out_dir, seed, resolution, crs, prior, bounds, like, checkpoints, config
     )
-    with console.status(f"fitting a GP to {data.n} samples..."):
-        ds = TerrainGP(seed=seed).fit(data).predict_grid(grid)
-    target = out_dir / "reconstruction.nc"
-    with atomic_path(target) as tmp:
-        ds.to_netcdf(tmp, engine="scipy")
-    console.print(f"wrote {target} ({grid.ny} x {grid.nx} cells, seed {seed})")
+
+
+def _run_demo(out_dir: Path, seed: int, n_samples: int, resolution: float) -> None:
+    from ..demo import reconstruction_demo
+    from ..figures import plot_demo
+
+    with console.status("reconstructing the default site..."):
+        result = reconstruction_demo(seed=seed, n_samples=n_samples, resolution=resolution)
+    _print_demo(result)
+    png = plot_demo(result, out_dir / "demo.png")
+    with atomic_path(out_dir / "demo_summary.json") as tmp:
+        tmp.write_text(json.dumps(result.summary(), indent=2))
+    console.print(f"wrote {png} and {out_dir / 'demo_summary.json'}")
+
+
+def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, like, cps, config):
+    import warnings
+
+    from terrain.errors import DegenerateFitWarning
+
+    from ..config import load_scenario
+    from ..export._files import staged_folder
+    from ..processing import prior_mean
+    from ..products import write_map_products
+    from ..samples_io import read_samples
+    from ..stages import certify_stage, map_grid, reconstruct_stage
+
+    settings = load_scenario(config, {"seed": seed})
+    table = read_samples(samples, crs)
+    if table.note:
+        console.print(f"[yellow]note:[/] {table.note}")
+    data = table.samples
+    if like is not None:
+        from ..certify_io import read_dem
+
+        grid = read_dem(like).grid
+    else:
+        grid = map_grid(bounds, resolution, data.crs, data)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DegenerateFitWarning)
+        with console.status(f"fitting a GP to {data.n} samples..."):
+            rec = reconstruct_stage(
+                data,
+                grid,
+                prior_mean(prior, settings),
+                settings,
+                seed,
+                landmark_rel_z_std=table.track_z_std,
+                shared_z_std=table.shared_z_std,
+                heldout_folds=int(settings["certify"]["heldout_folds"]),
+            )
+    for w in caught:
+        if issubclass(w.category, DegenerateFitWarning):
+            console.print(f"[yellow]warning (degenerate fit):[/] {w.message}")
+    reverted = _reverted_fraction(rec)
+    if reverted > 0.5:
+        console.print(
+            f"[yellow]warning:[/] the map reverts to its prior mean on {100 * reverted:.0f} % of "
+            "the cells (their 1-sigma is within 10 % of the prior's): the samples do not "
+            "constrain most of this grid; narrow --bounds or add samples"
+        )
+    cert = certify_stage(rec, cps, settings, seed) if cps is not None else None
+    if cert is None and rec.heldout is not None:
+        from ..certify import heldout_block
+
+        cert = {"seed": seed, "heldout_calibration": heldout_block(rec.heldout)}
+    with staged_folder(out_dir) as tmp:
+        write_map_products(tmp, rec, cert, settings)
+        written = sorted(p.name for p in tmp.iterdir())
+    table_out = Table(title=f"glacimap reconstruct — seed {seed} — {out_dir}")
+    table_out.add_column("quantity")
+    table_out.add_column("value", justify="right")
+    table_out.add_row("samples", str(data.n))
+    table_out.add_row("grid", f"{grid.ny} x {grid.nx} cells of {grid.resolution[0]:g} m")
+    table_out.add_row("kernel (by evidence)", str(rec.product.attrs.get("kernel")))
+    table_out.add_row("mean", str(rec.product.attrs.get("mean_function")))
+    table_out.add_row("cells reverting to the prior", f"{100 * reverted:.1f} %")
+    if cert is not None:
+        from ._progress import certificate_rows
+
+        certificate_rows(table_out, cert)
+    console.print(table_out)
+    console.print("wrote " + ", ".join(written))
+
+
+def _reverted_fraction(rec) -> float:
+    """Share of cells whose relative 1-sigma is within 10 % of the GP's prior 1-sigma."""
+    rel = rec.product["elevation_std_relative"].values
+    prior_sd = float(np.sqrt(rec.gp.kernel_.variance))
+    return float(np.mean(rel > 0.9 * prior_sd))

@@ -1,0 +1,86 @@
+"""Read terrain samples from CSV for ``glacimap reconstruct``: coordinates with the checkpoint
+reader's header aliases and CRS rules (a ``crs`` column, a ``.crs``/``.prj`` sidecar or the
+caller's), never a guessed CRS; geographic coordinates projected to their UTM zone."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pyproj import CRS, Transformer
+from pyproj.aoi import AreaOfInterest
+from pyproj.database import query_utm_crs_info
+
+from terrain import ElevationSamples
+from terrain.errors import bad_input
+
+from .certify_io import read_checkpoints
+
+__all__ = ["SampleTable", "read_samples"]
+
+#: Optional columns of a samples table (what ``glacimap localize`` / ``process`` write).
+OPTIONAL = ("z_var", "track_z_std_m", "shared_offset_std_m")
+
+
+class SampleTable:
+    """Samples plus the error-budget columns, in a projected CRS (metres)."""
+
+    def __init__(self, samples: ElevationSamples, track: np.ndarray, shared: float, note: str):
+        self.samples, self.track_z_std, self.shared_z_std, self.note = samples, track, shared, note
+
+
+def _utm_for(lon: np.ndarray, lat: np.ndarray) -> CRS:
+    info = query_utm_crs_info(
+        datum_name="WGS 84",
+        area_of_interest=AreaOfInterest(
+            float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max())
+        ),
+    )
+    return CRS.from_epsg(int(info[0].code))
+
+
+def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
+    """Read ``x, y, z[, z_var, track_z_std_m, shared_offset_std_m]`` (aliases as for
+    checkpoints: easting/northing/elevation, lon/lat/height...).
+
+    Raises
+    ------
+    InputError
+        No file, missing columns, no CRS anywhere (pass ``--crs``), non-finite values.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise bad_input("SAMPLES", str(path), "an existing CSV file", "check the path")
+    table = read_checkpoints(path, crs=crs)
+    if table.crs is None:
+        raise bad_input(
+            "--crs",
+            None,
+            f"the CRS of {path.name}'s coordinates (a crs column, a {path.stem}.crs sidecar or "
+            "--crs)",
+            "pass --crs EPSG:32608 (or the survey's projected CRS); glacimap never guesses it",
+        )
+    extra = np.genfromtxt(path, delimiter=",", names=True, dtype=float, encoding="utf-8")
+    extra = np.atleast_1d(extra)
+    names = {n.lower(): n for n in extra.dtype.names or ()}
+    bad = table.nan_rows()
+    if bad.any():
+        raise bad_input(
+            "SAMPLES rows", f"{int(bad.sum())} with NaN x, y or z", "finite values", "fix them"
+        )
+    xy, note, map_crs = table.xy, "", table.crs
+    if map_crs.is_geographic:
+        map_crs = _utm_for(xy[:, 0], xy[:, 1])
+        tr = Transformer.from_crs(table.crs, map_crs, always_xy=True)
+        xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
+        note = f"geographic coordinates projected to {map_crs.to_string()} ({map_crs.name})"
+    z_var = extra[names["z_var"]] if "z_var" in names else np.zeros(table.n)
+    track = extra[names["track_z_std_m"]] if "track_z_std_m" in names else np.sqrt(z_var)
+    shared = (
+        float(extra[names["shared_offset_std_m"]][0]) if "shared_offset_std_m" in names else 0.0
+    )
+    samples = ElevationSamples(xy, table.z, z_var, crs=map_crs.to_string())
+    if samples.n != table.n:  # duplicates merged: the along-track term per merged sample
+        track = np.sqrt(samples.z_var)
+    return SampleTable(samples, np.asarray(track, float), shared, note)
