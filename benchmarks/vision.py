@@ -28,6 +28,8 @@ Cases
     (3-D, full marginal) and share within 2 sigma (NEES < chi2(3) 95.45 %), keyframe
     horizontal / vertical RMSE, GPS-only horizontal RMSE, map RMSE and 95 % coverage of the
     satellite-mean GP map (as ``glacimap run``), timings.
+``chain_sunny_part``
+    ``chain_sunny`` on the part of the site that ``chain_overcast`` uses.
 ``chain_overcast``
     The same on a 240 m part of the site (``--overcast-bounds``, ``--overcast-swaths`` 2:
     560 m, 281 keyframes), overcast snow, CLAHE off and on.
@@ -225,7 +227,7 @@ def case_chain(scene: str, swaths: int, clahe_both: bool, bounds=None) -> dict[s
     seed = int(scenario["seed"])
     t0 = time.perf_counter()
     params = TrackParams(clahe=False)
-    frames_dir = Path("out/bench_vision_frames") / scene
+    frames_dir = Path("out/bench_vision_frames") / f"{scene}_{swaths}"
     run = simulate_images(truth, plan, sensors, seed, SCENES[scene], params, frames_dir)
     chain_s = time.perf_counter() - t0
     rows = [_chain_row("ideal tracks", run.ideal, truth, scenario)]
@@ -267,7 +269,11 @@ def case_chain(scene: str, swaths: int, clahe_both: bool, bounds=None) -> dict[s
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--cases", nargs="+", default=["frontend", "chain_sunny", "chain_overcast"])
+    ap.add_argument(
+        "--cases",
+        nargs="+",
+        default=["frontend", "chain_sunny", "chain_sunny_part", "chain_overcast"],
+    )
     ap.add_argument("--keyframes", type=int, default=30)
     ap.add_argument("--overcast-swaths", type=int, default=2)
     ap.add_argument(
@@ -303,9 +309,9 @@ def main() -> None:
                 ("track_ms", "track ms", ".0f"),
             ]
         else:
-            scene = "sunny_snow" if case == "chain_sunny" else "overcast_snow"
+            scene = "overcast_snow" if case == "chain_overcast" else "sunny_snow"
             swaths = 4 if case == "chain_sunny" else args.overcast_swaths
-            bounds = args.overcast_bounds if case == "chain_overcast" else None
+            bounds = None if case == "chain_sunny" else args.overcast_bounds
             res = in_subprocess(case_chain, scene, swaths, case == "chain_overcast", bounds)
             cols = [
                 ("case", "case", ""),
