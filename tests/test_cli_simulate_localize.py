@@ -91,7 +91,11 @@ def test_localize_tables_and_counts(chain):
     assert len(traj) == summary["keyframes"] == 81
     assert np.array_equal(traj["k"], np.arange(81)) and (traj[["std_x", "std_z"]] > 0).all().all()
     assert len(lms) == counts["in_graph"] > 0
-    assert list(samples.columns) == ["x", "y", "z", "z_var"]
+    # samples + what the error budget needs, so reconstruct gives run's sigma; CRS named
+    cols = ["x", "y", "z", "z_var", "track_z_std_m", "shared_offset_std_m", "crs"]
+    assert list(samples.columns) == cols
+    np.testing.assert_allclose(samples["shared_offset_std_m"], summary["shared_offset_std_m"][2])
+    assert (samples["crs"] == "EPSG:32608").all()
     assert len(samples) == int(lms["kept"].sum()) == counts["kept"] > 0
     assert (samples["z_var"] > 0).all()
     # Eq 7: the sample variance is the landmark's z variance, its std in the landmark table
@@ -117,7 +121,7 @@ def test_localize_tables_and_counts(chain):
 
 
 def test_reconstruct_accepts_the_samples(chain):
-    ds = xr.open_dataset(chain["root"] / "rec" / "reconstruction.nc")
+    ds = xr.open_dataset(chain["root"] / "rec" / "product.nc")
     truth = default_site(2.0).interp(x=ds.x, y=ds.y)
     err = (ds["elevation"] - truth).values
     shared = json.loads((chain["root"] / "loc" / "localize_summary.json").read_text())
@@ -126,6 +130,11 @@ def test_reconstruct_accepts_the_samples(chain):
     assert abs(err.mean()) < 3 * shared["shared_offset_std_m"][2]
     assert np.sqrt(((err - err.mean()) ** 2).mean()) < 1.5
     assert (ds["elevation_std"].values > 0).all()
+    # the shared offset is in the total sigma, not in the relative one
+    assert (ds["elevation_std"].values >= ds["elevation_std_relative"].values).all()
+    assert ds.attrs["shared_vertical_offset_std_m"] == pytest.approx(
+        shared["shared_offset_std_m"][2]
+    )
 
 
 def test_parquet_round_trip_and_no_stale_tables(chain, tmp_path):
@@ -153,7 +162,8 @@ def test_parquet_round_trip_and_no_stale_tables(chain, tmp_path):
     same = pd.read_csv(chain["root"] / "loc" / "samples.csv")
     got = pd.read_csv(tmp_path / "loc" / "samples.csv")
     # the same traverse: CSV keeps 9 digits of each measurement, Parquet all of them
-    np.testing.assert_allclose(got.to_numpy(), same.to_numpy(), rtol=1e-4)
+    num = same.columns.drop("crs")
+    np.testing.assert_allclose(got[num].to_numpy(), same[num].to_numpy(), rtol=1e-4)
     assert len(pd.read_parquet(tmp_path / "loc" / "trajectory.parquet")) == 81
 
 

@@ -4,8 +4,10 @@ Only ``toolkit`` sees every other package (the layout ``toolkit -> {survey, fact
 -> terrain``). The names below are the public contract; most are imported on first use
 (PEP 562), so ``import toolkit`` stays light and a name's own module loads only when asked.
 
-* Pipeline: :func:`run_scenario` (simulate -> localize -> select -> reconstruct -> certify ->
-  export -> report) -> :class:`RunResult`; :func:`load_scenario` reads a scenario TOML.
+* Pipeline: :func:`process` (a survey's files: ingest -> localize -> select -> reconstruct ->
+  certify -> export -> report) -> :class:`ProcessResult`; :func:`run_scenario` (simulate a
+  survey, write it as field files, :func:`process` them) -> :class:`RunResult`;
+  :func:`load_scenario` reads a scenario / settings TOML.
 * Certification: :func:`certify` a DEM against independent checkpoints
   (:func:`read_checkpoints`, :class:`Checkpoints`), :func:`write_certificate`.
 * Products: :func:`write_cog`, :func:`write_contours`, :func:`write_mesh`,
@@ -26,6 +28,8 @@ from .certify import Checkpoints, certify, read_checkpoints, write_certificate
 _WHERE = {
     "RunResult": "toolkit.pipeline",
     "run_scenario": "toolkit.pipeline",
+    "process": "toolkit.processing",
+    "ProcessResult": "toolkit.processing",
     "load_scenario": "toolkit.config",
     "write_cog": "toolkit.export",
     "write_contours": "toolkit.export",
@@ -37,10 +41,12 @@ _WHERE = {
 
 __all__ = [
     "Checkpoints",
+    "ProcessResult",
     "RunResult",
     "certify",
     "load_scenario",
     "main",
+    "process",
     "read_checkpoints",
     "run_scenario",
     "write_certificate",

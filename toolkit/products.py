@@ -82,6 +82,7 @@ def samples_table(sel: LandmarkSelection) -> dict[str, np.ndarray]:
         "z_var": s.z_var,
         "track_z_std_m": track,  # relative vertical 1-sigma: the along-track error term
         "shared_offset_std_m": np.full(s.n, shared),
+        "crs": np.full(s.n, s.crs.to_string() if s.crs is not None else ""),  # never guessed
     }
 
 

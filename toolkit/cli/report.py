@@ -101,8 +101,8 @@ def _certified_dem(run_dir: Path, cert_path: Path, dem: Path | None) -> Path:
     if named.get("sha256") not in (None, digest):
         raise bad_input(
             "DEM",
-            str(found),
-            f"the file certified (sha256 {named['sha256'][:12]}...)",
+            found.name,  # the name, not a long path the message would cut
+            f"the file certified (sha256 {named['sha256'][:12]}...) in {found.parent}",
             "re-run glacimap certify on this DEM, or pass the certified one with --dem",
         )
     return found
