@@ -21,6 +21,7 @@ NOTEBOOKS = (
     "04_plan_monte_carlo",
     "05_export_report",
     "06_change",
+    "07_process_field",
 )
 # First-party packages plus the libraries their public API returns or that read the products.
 ALLOWED_IMPORTS = {
