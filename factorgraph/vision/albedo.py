@@ -205,9 +205,7 @@ class GlacierAlbedo:
                 x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, nx), min(y1, ny)
                 if x1 <= x0 or y1 <= y0:
                     continue
-                d = np.hypot(
-                    np.arange(x0, x1)[None, :] - cx[i], np.arange(y0, y1)[:, None] - cy[i]
-                )
+                d = np.hypot(np.arange(x0, x1)[None, :] - cx[i], np.arange(y0, y1)[:, None] - cy[i])
                 cover = np.clip(r[i] + 0.5 - d, 0, 1) * (0.3 if r[i] < 0.5 else 1.0)
                 albedo[y0:y1, x0:x1] += cover * (dark - albedo[y0:y1, x0:x1])
                 bare[y0:y1, x0:x1] = np.maximum(bare[y0:y1, x0:x1], cover)
