@@ -15,7 +15,6 @@ import json
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +29,7 @@ from terrain.synthetic import default_site, random_terrain
 
 from .config import load_scenario
 from .field_survey import write_field_survey
-from .processing import PROCESS_STAGES, _json_default, process
+from .processing import PROCESS_STAGES, ProcessResult, _json_default, process
 from .products import landmark_table, samples_table, trajectory_table
 from .stages import localization_summary, localize_stage, select_stage
 
@@ -52,15 +51,13 @@ __all__ = [
 STAGES = ("plan", "simulate", *PROCESS_STAGES)
 
 
-@dataclass
-class RunResult:
-    """What ``glacimap run`` made: products on disk plus the in-memory objects."""
+class RunResult(ProcessResult):
+    """What ``glacimap run`` made: products on disk plus the in-memory objects; its
+    ``settings`` are the scenario."""
 
-    out: Path
-    scenario: dict[str, Any]
-    timings: dict[str, float] = field(default_factory=dict)
-    summary: dict[str, Any] = field(default_factory=dict)
-    objects: dict[str, Any] = field(default_factory=dict)
+    @property
+    def scenario(self) -> dict[str, Any]:
+        return self.settings
 
 
 def make_truth(scenario: dict[str, Any]):
@@ -169,16 +166,11 @@ def run_scenario(
     """
     scenario = load_scenario(config, overrides)
     out = ensure_writable_dir(out)
-    res = RunResult(out=out, scenario=scenario)
-    notify = on_stage or (lambda stage, state: None)
+    res = RunResult(out=out, settings=scenario)
 
     def timed(name: str, fn: Callable[[], Any]) -> Any:
-        notify(name, "start")
-        t = time.perf_counter()
-        value = fn()
-        res.timings[name] = round(time.perf_counter() - t, 3)
-        notify(name, "done")
-        return value
+        with res.stage(name, on_stage):
+            return fn()
 
     truth = timed("plan", lambda: make_truth(scenario))
     plan = make_plan(scenario, truth)

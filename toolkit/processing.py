@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,6 +50,16 @@ class ProcessResult:
     timings: dict[str, float] = field(default_factory=dict)
     summary: dict[str, Any] = field(default_factory=dict)
     objects: dict[str, Any] = field(default_factory=dict)
+
+    @contextmanager
+    def stage(self, name: str, notify: Callable[[str, str], None] | None = None):
+        """Time the stage ``name`` into :attr:`timings`; ``notify(name, "start" | "done")``."""
+        notify = notify or (lambda stage, state: None)
+        notify(name, "start")
+        t = time.perf_counter()
+        yield
+        self.timings[name] = round(time.perf_counter() - t, 3)
+        notify(name, "done")
 
 
 def ingest(log: Any, crs: Any = None) -> tuple[MeasurementLog, dict[str, Any]]:
@@ -151,20 +162,9 @@ def process(
     out = ensure_writable_dir(out)
     seed = int(settings["seed"])
     res = ProcessResult(out=out, settings=settings)
-    notify = on_stage or (lambda stage, state: None)
 
     def stage(name: str):
-        class _Timer:
-            def __enter__(self):
-                notify(name, "start")
-                self.t = time.perf_counter()
-
-            def __exit__(self, *exc):
-                res.timings[name] = round(time.perf_counter() - self.t, 3)
-                if exc[0] is None:
-                    notify(name, "done")
-
-        return _Timer()
+        return res.stage(name, on_stage)
 
     with stage("ingest"):
         mlog, ingest_report = ingest(log)
