@@ -68,25 +68,28 @@ def _checkpoints(scenario: dict[str, Any], truth):
 
 def _map(scenario, truth, loc, sel) -> dict[str, Any]:
     """The pipeline's ``gp_satellite`` product and its certificate."""
-    from terrain import Grid, TerrainGP, TriangulatedMean, coarse_dem, evaluate
+    from terrain import Grid, TriangulatedMean, coarse_dem, evaluate
     from toolkit.certify import certify
-    from toolkit.error_budget import inflate_std
+    from toolkit.stages import reconstruct_stage
 
-    rc, seed = scenario["reconstruct"], int(scenario["seed"])
+    seed = int(scenario["seed"])
     grid = Grid.from_bounds(
-        tuple(scenario["site"]["bounds"]), float(rc["resolution_m"]), scenario["site"]["crs"]
+        tuple(scenario["site"]["bounds"]),
+        float(scenario["reconstruct"]["resolution_m"]),
+        scenario["site"]["crs"],
     )
     kept = sel.table["kept"]
-    gp = TerrainGP(
-        mean=TriangulatedMean(coarse_dem(truth, cells=(8, 8))),
-        method=rc["method"],
-        max_fit_samples=int(rc["max_fit_samples"]),
-        n_restarts=int(rc["n_restarts"]),
-        seed=seed,
-    ).fit(sel.samples)
-    lm_xy = np.column_stack([sel.table["x"][kept], sel.table["y"][kept]])
-    shared_z = float(sel.shared_offset_std_m[2])
-    product = inflate_std(gp.predict_grid(grid), gp, lm_xy, sel.table["z_std_m"][kept], shared_z)
+    product = reconstruct_stage(  # the pipeline's GP map with the paper's 8 x 8 prior
+        sel.samples,
+        grid,
+        TriangulatedMean(coarse_dem(truth, cells=(8, 8))),
+        scenario,
+        seed,
+        landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
+        landmark_rel_z_std=sel.table["z_std_m"][kept],
+        shared_z_std=float(sel.shared_offset_std_m[2]),
+        heldout_folds=0,
+    ).product
     truth_on_grid = truth.interp(x=grid.x, y=grid.y, method="linear")
     m = evaluate(product["elevation"].values, truth_on_grid.values, product["elevation_std"].values)
     cert = certify(product, _checkpoints(scenario, truth), seed=seed, n_boot=200)

@@ -115,29 +115,27 @@ def case_frontend(n_keyframes: int, seed: int) -> dict[str, Any]:
 
 def _map_metrics(sel, truth, scenario) -> dict[str, float]:
     """The satellite-mean GP map of ``glacimap run`` (toolkit.pipeline) and its metrics."""
-    from terrain import Grid, TerrainGP, TriangulatedMean, coarse_dem, evaluate
-    from toolkit.error_budget import inflate_std
+    from terrain import Grid, TriangulatedMean, coarse_dem, evaluate
+    from toolkit.stages import reconstruct_stage
 
-    rc, seed = scenario["reconstruct"], int(scenario["seed"])
+    seed = int(scenario["seed"])
     grid = Grid.from_bounds(
-        tuple(scenario["site"]["bounds"]), float(rc["resolution_m"]), scenario["site"]["crs"]
+        tuple(scenario["site"]["bounds"]),
+        float(scenario["reconstruct"]["resolution_m"]),
+        scenario["site"]["crs"],
     )
-    gp = TerrainGP(
-        mean=TriangulatedMean(coarse_dem(truth, cells=(8, 8))),
-        method=rc["method"],
-        max_fit_samples=int(rc["max_fit_samples"]),
-        n_restarts=int(rc["n_restarts"]),
-        seed=seed,
-    ).fit(sel.samples)
     kept = sel.table["kept"]
-    lm_xy = np.column_stack([sel.table["x"][kept], sel.table["y"][kept]])
-    ds = inflate_std(
-        gp.predict_grid(grid),
-        gp,
-        lm_xy,
-        sel.table["z_std_m"][kept],
-        float(sel.shared_offset_std_m[2]),
-    )
+    ds = reconstruct_stage(  # the pipeline's GP map with the paper's 8 x 8 prior
+        sel.samples,
+        grid,
+        TriangulatedMean(coarse_dem(truth, cells=(8, 8))),
+        scenario,
+        seed,
+        landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
+        landmark_rel_z_std=sel.table["z_std_m"][kept],
+        shared_z_std=float(sel.shared_offset_std_m[2]),
+        heldout_folds=0,
+    ).product
     t = truth.interp(x=grid.x, y=grid.y, method="linear").values
     m = evaluate(ds["elevation"].values, t, ds["elevation_std"].values)
     return {"map_rmse_m": m["rmse"], "map_coverage_95": m["coverage_95"]}
