@@ -125,3 +125,34 @@ def test_bad_input_writes_nothing(epochs, tmp_path, case, match):
     assert res.exit_code != 0
     assert match in str(res.exception)
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_write_cog_named_bands_round_trip(tmp_path):
+    """``write_cog(bands=...)`` (what the change COG uses): the named variables come back
+    from GDAL as the bands, in order, NaN as nodata, attrs as tags, a y-ascending dataset
+    written north-up; a missing variable is an InputError naming it."""
+    import xarray as xr
+
+    from terrain.errors import InputError
+
+    g = Grid.from_bounds((0.0, 0.0, 64.0, 48.0), 2.0, "EPSG:32608")
+    rng = np.random.default_rng(3)
+    dh, sd = rng.normal(size=g.shape), rng.uniform(0.1, 0.2, g.shape)
+    dh[0, 0] = np.nan
+    ds = xr.Dataset(
+        {"dh": (("y", "x"), dh), "dh_std": (("y", "x"), sd)},
+        coords=g.coords(),
+        attrs={**g.attrs(), "method": "test", "seed": 3},
+    )
+    path = write_cog(ds.sortby("y"), tmp_path / "c.tif", bands=[("dh_std", "s"), ("dh", "d")])
+    with rasterio.open(path) as src:
+        assert src.descriptions == ("dh_std", "dh")
+        assert src.transform.e < 0 and src.crs.to_epsg() == 32608
+        np.testing.assert_array_equal(src.read(1), sd.astype(np.float32))
+        got = src.read(2)
+        assert np.isnan(got[0, 0])
+        np.testing.assert_array_equal(got[1:], dh[1:].astype(np.float32))
+        assert src.tags()["method"] == "test" and src.tags()["seed"] == "3"
+        assert src.overviews(1) == [2]  # 24 x 32 cells: 12 >= 8 pixels at 2, 6 < 8 at 4
+    with pytest.raises(InputError, match="elevation"):
+        write_cog(ds, tmp_path / "d.tif", bands=[("elevation", "x")])

@@ -36,39 +36,10 @@ CHANGE_BANDS = (("dh", "elevation change after - before"), ("dh_std", "per-cell 
 
 def write_change_cog(diff: Any, path: str | os.PathLike) -> Path:
     """The change map as a Cloud-Optimized GeoTIFF: bands ``dh`` and ``dh_std`` (float32, m,
-    nodata NaN), the diff's provenance as dataset tags."""
-    from rasterio.io import MemoryFile
-    from rasterio.shutil import copy as gdal_copy
+    nodata NaN), the diff's provenance as dataset tags (:func:`toolkit.export.write_cog`)."""
+    from .export import write_cog
 
-    from .export._files import atomic_file
-    from .export._product import provenance_strings
-
-    diff = north_up(diff)
-    grid = Grid.from_dataarray(diff)
-    bands = np.stack([diff["dh"].values, diff["dh_std"].values]).astype(np.float32)
-    profile = {
-        "driver": "GTiff",
-        "width": grid.nx,
-        "height": grid.ny,
-        "count": 2,
-        "dtype": "float32",
-        "crs": grid.crs.to_wkt(),
-        "transform": grid.transform,
-        "nodata": np.nan,
-    }
-    target = Path(path)
-    with MemoryFile() as mem:
-        with mem.open(**profile) as dst:
-            dst.write(bands)
-            for i, (name, long_name) in enumerate(CHANGE_BANDS, start=1):
-                dst.set_band_description(i, name)
-                dst.set_band_unit(i, "m")
-                dst.update_tags(i, long_name=long_name, units="m")
-            keep = {k: v for k, v in diff.attrs.items() if k not in ("crs_wkt", "transform")}
-            dst.update_tags(AREA_OR_POINT="Area", **provenance_strings(keep))
-        with mem.open() as src, atomic_file(target) as tmp:
-            gdal_copy(src, str(tmp), driver="COG", COMPRESS="DEFLATE", PREDICTOR="YES")
-    return target
+    return write_cog(diff, path, bands=CHANGE_BANDS)
 
 
 def write_volume_tables(vc: VolumeChange, json_path: Path, csv_path: Path, **extra: Any) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,7 @@ def write_cog(
     ds: Any,
     path: str | os.PathLike,
     *,
+    bands: Sequence[tuple[str, str]] | None = None,
     blocksize: int = 512,
     overview_min_size: int = 8,
     compress_level: int = 6,
@@ -51,6 +53,12 @@ def write_cog(
         CRS in its attributes (:func:`terrain.product.terrain_dataset`).
     path : path-like
         Output ``.tif``/``.tiff`` file, in an existing folder; written atomically.
+    bands : sequence of (str, str), optional
+        ``(variable, long name)`` pairs: write these variables of ``ds`` (metres, dims
+        ``(y, x)``, each of the grid's shape) as the bands, in this order, instead of the
+        terrain product's ``elevation`` / ``elevation_std`` [/ ``elevation_std_relative``].
+        ``ds`` then needs only those variables and a CRS, e.g. ``dh`` and ``dh_std`` of
+        :func:`terrain.difference`; its attributes (georeferencing left out) become tags.
     blocksize : int
         Tile size in pixels (a multiple of 16; COG default 512).
     overview_min_size : int
@@ -74,11 +82,14 @@ def write_cog(
     GPS heights unless the product says otherwise) are dataset tags; JSON-encoded where not
     strings.
 
+    With ``bands=`` the bands are those variables (unit ``m``, nodata NaN) and the tags the
+    dataset's attributes.
+
     Raises
     ------
     terrain.errors.InputError
         Bad product (see ``read_product``), a wrong extension or an unwritable folder, a bad
-        block size.
+        block size; with ``bands=``, a variable that is missing or not on ``(y, x)``, no CRS.
     """
     from rasterio.enums import Resampling
     from rasterio.io import MemoryFile
@@ -89,11 +100,14 @@ def write_cog(
         raise bad_input("blocksize", blocksize, "a positive multiple of 16", "e.g. 512")
     if not 1 <= compress_level <= 9:
         raise bad_input("compress_level", compress_level, "an integer 1-9", "e.g. 6")
-    product = read_product(ds)
-    grid = product.grid
-    names = BANDS if product.elevation_std_relative is None else (*BANDS, RELATIVE_BAND)
-    layers = [product.elevation, product.elevation_std, product.elevation_std_relative]
-    bands = np.stack(layers[: len(names)]).astype(np.float32)
+    if bands is None:
+        product = read_product(ds)
+        grid, tags = product.grid, product.provenance
+        names = BANDS if product.elevation_std_relative is None else (*BANDS, RELATIVE_BAND)
+        layers = [product.elevation, product.elevation_std, product.elevation_std_relative]
+        data = np.stack(layers[: len(names)]).astype(np.float32)
+    else:
+        grid, names, data, tags = _named_bands(ds, bands)
     profile = {
         "driver": "GTiff",
         "width": grid.nx,
@@ -108,12 +122,12 @@ def write_cog(
         # Build the bands, metadata and overviews on an in-memory GeoTIFF, then let GDAL's COG
         # driver lay it out (IFDs first, overviews before the full resolution, tiles).
         with mem.open(**profile) as dst:
-            dst.write(bands)
+            dst.write(data)
             for i, (name, long_name) in enumerate(names, start=1):
                 dst.set_band_description(i, name)
                 dst.set_band_unit(i, "m")
                 dst.update_tags(i, long_name=long_name, units="m")
-            dst.update_tags(AREA_OR_POINT="Area", **product.provenance)
+            dst.update_tags(AREA_OR_POINT="Area", **tags)
             factors = overview_factors(grid.shape, overview_min_size)
             if factors:
                 dst.build_overviews(factors, Resampling.average)
@@ -129,3 +143,39 @@ def write_cog(
                 OVERVIEWS="FORCE_USE_EXISTING" if factors else "NONE",
             )
     return target
+
+
+def _named_bands(ds: Any, bands: Sequence[tuple[str, str]]):
+    """(grid, band names, float32 stack (k, ny, nx), tags) of the variables ``bands`` of
+    ``ds``, north-up."""
+    import xarray as xr
+
+    from terrain.grid import Grid, north_up
+
+    from ._product import provenance_strings
+
+    if not isinstance(ds, xr.Dataset):
+        raise bad_input("ds", type(ds).__name__, "an xarray.Dataset", "pass the dataset")
+    try:
+        pairs = [(str(v), str(long)) for v, long in bands]
+    except (TypeError, ValueError) as exc:
+        raise bad_input(
+            "bands", bands, "(variable, long name) pairs", "e.g. [('dh', 'dh')]"
+        ) from exc
+    if not pairs:
+        raise bad_input("bands", bands, "at least one (variable, long name) pair", "")
+    for name, _ in pairs:
+        if name not in ds.data_vars or set(ds[name].dims) != {"y", "x"}:
+            raise bad_input(
+                f"bands '{name}'",
+                sorted(str(v) for v in ds.data_vars),
+                "a variable of ds on dims (y, x)",
+                "name variables that the dataset has",
+            )
+    if not (ds.attrs.get("crs_wkt") or ds.attrs.get("crs")):
+        raise bad_input("ds.attrs['crs_wkt']", None, "the CRS of the raster", "set it")
+    ds = north_up(ds)
+    grid = Grid.from_dataarray(ds)
+    data = np.stack([ds[n].transpose("y", "x").values for n, _ in pairs]).astype(np.float32)
+    data[~np.isfinite(data)] = np.nan
+    return grid, pairs, data, provenance_strings(dict(ds.attrs))
