@@ -4,6 +4,16 @@ certificate, the stages ``toolkit/pipeline.py`` runs.
 
     python benchmarks/ground_control.py --out benchmarks/results/ground_control.json
     python benchmarks/ground_control.py --seeds 0 1 2 --no-map     # landmarks only, 3 seeds
+    python benchmarks/ground_control.py --route process --out benchmarks/results/ground_control.json
+
+``--route stages`` (default) runs the stages below on the simulated log in memory, with the
+paper's perfect 8 x 8 prior and checkpoints drawn with ``default_rng(seed)``. ``--route
+process`` runs ``glacimap run`` itself (:func:`toolkit.pipeline.run_scenario`): the survey
+written as field files (NMEA, ``stops.csv``, ``control.csv``, a noisy offset ``prior.tif``,
+its own 400 checkpoints) and processed by ``toolkit.process`` with no truth; the cases are
+the scenario's ``[control] n_targets = 4`` with ``mode`` stops / targets / both, and an
+RTK-grade GPS (:data:`RTK_GPS`, written as NMEA fix quality 4 with GST sigmas). Its rows go
+to ``process_rows`` of the JSON (the other keys are kept).
 
 Cases, on the same simulated log (same seed, same bytes: the control draws have their own
 stream, ``factorgraph.control_sim``):
@@ -48,6 +58,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._harness import in_subprocess, table, write_json  # noqa: E402
 
 CASES = ("none", "stops4", "stops2", "stops8", "targets4")
+PROCESS_CASES = ("none", "stops4", "targets4", "both4", "rtk", "rtk_stops4")
+#: RTK-fixed GPS: 2 cm horizontal, 3 cm vertical white noise per fix (the receiver's GST
+#: sigmas, fix quality 4) and a small correlated part (multipath, base coordinates): 1 cm
+#: horizontal, 2 cm vertical Gauss-Markov bias (tau 60 s, the default).
+RTK_GPS = {"sigma_white_m": [0.02, 0.02, 0.03], "bias_sigma_m": [0.01, 0.01, 0.02]}
 
 
 def _checkpoints(scenario: dict[str, Any], truth):
@@ -164,6 +179,81 @@ def run_case(case: str, seed: int, with_map: bool) -> dict[str, Any]:
     return out
 
 
+def process_overrides(case: str, seed: int) -> dict[str, Any]:
+    """Scenario overrides of a ``--route process`` case."""
+    over: dict[str, Any] = {"seed": seed}
+    mode = {"stops4": "stops", "targets4": "targets", "both4": "both", "rtk_stops4": "stops"}
+    if case in mode:
+        over["control"] = {"n_targets": 4, "mode": mode[case]}
+    if case.startswith("rtk"):
+        over["sensors"] = {"gps": dict(RTK_GPS)}
+    return over
+
+
+def _landmark_errors(loc, sim_log, ids=None) -> dict[str, float]:
+    """Vertical error of the processed landmarks (``ids``: a subset) against the simulation's
+    true landmarks, matched by track id (the field files keep the ids)."""
+    tr = sim_log.truth
+    lid = loc.landmark_id if ids is None else np.asarray(ids)
+    row = np.searchsorted(loc.landmark_id, lid)
+    pos = np.searchsorted(tr["landmark_id"], lid)
+    shift = np.r_[loc.log.origin - sim_log.origin, 0.0]  # same origin when from survey.json
+    e = loc.landmark_xyz[row] + shift - tr["landmark_xyz"][pos]
+    return {
+        "z_mean_m": float(e[:, 2].mean()),
+        "z_rmse_m": float(np.sqrt(np.mean(e[:, 2] ** 2))),
+        "z_nees": float(np.mean(e[:, 2] ** 2 / loc.landmark_cov[row, 2, 2])),
+        "h_rmse_m": float(np.sqrt(np.mean((e[:, :2] ** 2).sum(1)))),
+        "n": int(lid.size),
+    }
+
+
+def run_process_case(case: str, seed: int) -> dict[str, Any]:
+    """``glacimap run`` (field files -> ``process``) for one case; scores against the truth."""
+    import tempfile
+
+    from toolkit.pipeline import run_scenario
+
+    over = process_overrides(case, seed)
+    with tempfile.TemporaryDirectory(prefix="gc_process_") as tmp:
+        res = run_scenario(None, out=tmp, overrides=over)
+    cert, metrics = res.summary["certificate"], res.summary["metrics"]
+    loc, sel, sim = res.objects["localization"], res.objects["selection"], res.objects["log"]
+    acc, locs = cert["accuracy"], cert["localization"]
+    kept_ids = sel.table["landmark_id"][sel.table["kept"]]
+    all_lm, kept_lm = _landmark_errors(loc, sim), _landmark_errors(loc, sim, kept_ids)
+    ctl = locs.get("control") or {}
+    return {
+        "case": case,
+        "seed": seed,
+        "route": "process",
+        "overrides": over,
+        "landmark_z_mean_m": all_lm["z_mean_m"],
+        "landmark_z_rmse_m": all_lm["z_rmse_m"],
+        "landmark_z_nees": all_lm["z_nees"],
+        "selected_z_mean_m": kept_lm["z_mean_m"],
+        "selected_z_rmse_m": kept_lm["z_rmse_m"],
+        "selected_h_rmse_m": kept_lm["h_rmse_m"],
+        "landmarks_in_graph": all_lm["n"],
+        "landmarks_selected": kept_lm["n"],
+        "keyframe_h_rmse_m": locs["simulation"].get("horizontal_rmse_m"),
+        "keyframe_z_rmse_m": locs["simulation"].get("vertical_rmse_m"),
+        "shared_z_std_m": float(locs["shared_offset_std_m"][2]),
+        "checkpoint_bias_m": acc["bias_m"],
+        "checkpoint_rmse_m": acc["rmse_m"],
+        "checkpoint_std_m": acc["std_m"],
+        "map_rmse_m": float(metrics["gp_satellite"]["rmse"]),
+        "map_coverage95": metrics["gp_satellite"].get("coverage_95"),
+        "delaunay_rmse_m": float(metrics["delaunay"]["rmse"]),
+        "kernel": cert["reconstruction"]["kernel"],
+        "control_used": [(u["id"], u["kind"]) for u in ctl.get("used", [])],
+        "control_unused": ctl.get("unused", {}),
+        "ingest_stops": cert["ingest"].get("stops", {}),
+        "gps_quality": cert["ingest"].get("gps_quality", {}),
+        "timings_s": res.timings,
+    }
+
+
 COLUMNS = [
     ("case", "case", ""),
     ("seed", "seed", "d"),
@@ -181,21 +271,55 @@ COLUMNS = [
 ]
 
 
+PROCESS_COLUMNS = [
+    ("case", "case", ""),
+    ("seed", "seed", "d"),
+    ("landmark_z_mean_m", "lm z mean", ".3f"),
+    ("landmark_z_rmse_m", "lm z RMSE", ".3f"),
+    ("selected_z_rmse_m", "sel z RMSE", ".3f"),
+    ("landmark_z_nees", "lm z NEES", ".2f"),
+    ("shared_z_std_m", "shared z σ", ".3f"),
+    ("keyframe_h_rmse_m", "kf h RMSE", ".3f"),
+    ("checkpoint_bias_m", "cp bias", ".3f"),
+    ("checkpoint_rmse_m", "cp RMSE", ".3f"),
+    ("map_rmse_m", "map RMSE", ".3f"),
+    ("delaunay_rmse_m", "Delaunay", ".3f"),
+    ("wall_s", "wall s", ".0f"),
+]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
+    ap.add_argument("--cases", nargs="+", default=None, choices=sorted({*CASES, *PROCESS_CASES}))
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--no-map", action="store_true", help="landmarks only (no GP, no certify)")
+    ap.add_argument("--route", choices=("stages", "process"), default="stages")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
+    known = CASES if args.route == "stages" else PROCESS_CASES
+    cases = args.cases or list(known)
+    if set(cases) - set(known):
+        ap.error(f"--route {args.route} cases: {', '.join(known)}")
     rows = []
+    cols = COLUMNS if args.route == "stages" else PROCESS_COLUMNS
     for seed in args.seeds:
-        for case in args.cases:
-            rows.append(in_subprocess(run_case, case, seed, not args.no_map))
-            print(table(rows[-1:], COLUMNS), flush=True)
-    print(table(rows, COLUMNS))
+        for case in cases:
+            if args.route == "stages":
+                rows.append(in_subprocess(run_case, case, seed, not args.no_map))
+            else:
+                rows.append(in_subprocess(run_process_case, case, seed))
+            print(table(rows[-1:], cols), flush=True)
+    print(table(rows, cols))
     if args.out:
-        write_json(args.out, {"benchmark": "ground_control", "rows": rows})
+        import json
+
+        key = "rows" if args.route == "stages" else "process_rows"
+        old = json.loads(args.out.read_text()) if args.out.is_file() else {}
+        old = {k: v for k, v in old.items() if k not in ("python", "machine", "cpu_count")}
+        if key in old and args.route == "process":  # merge: replace the (case, seed) rows run
+            done = {(r["case"], r["seed"]) for r in rows}
+            rows = [r for r in old[key] if (r["case"], r["seed"]) not in done] + rows
+        write_json(args.out, {**old, "benchmark": "ground_control", key: rows})
     return 0
 
 

@@ -76,8 +76,9 @@ noise_sd_m = 0.3               # simulation: its independent error per cell (m)
 [field]                        # simulation: how the survey is written for glacimap process
 gps_format = "nmea"            # nmea | gpx | rtklib
 
-[control]                      # simulation: ground control (marked targets the camera tracks)
-n_targets = 0                  # 0, or 4 near the survey's corners
+[control]                      # simulation: ground control at the survey's 4 corners
+n_targets = 0                  # control points: 0, or 4 near the survey's corners
+mode = "stops"                 # "stops" (rover stands on them), "targets" (camera) or "both"
 sigma_m = 0.02                 # their survey's 1-sigma (m)
 
 [certify]
@@ -88,6 +89,16 @@ heldout_folds = 5              # spatial-block CV of the map's sigma (0: skip)
 [export]
 mesh = true
 geojson = true
+
+[change]                       # a second epoch: the site after a known change (docs/change.md)
+epoch = 1                      # 1: the site as is; 2: after the change below, surveyed anew
+seed_offset = 1000             # epoch 2 is surveyed with seed + seed_offset (new GPS bias, ...)
+change_seed = 0                # seed of the change's ablation features (terrain.surface_change)
+outline_margin = 0.2           # glacier outline: terrain.default_outline(site bounds, margin)
+min_thinning_m = 0.5           # thinning at the highest glacier cell (m)
+max_thinning_m = 3.0           # thinning at the lowest glacier cell (m)
+n_features = 12                # melt pools / crevasses: 0.2-1 m deep, 5-20 m wide
+taper_m = 20.0                 # the change ramps up over this distance inside the outline (m)
 """
 
 DEFAULT_SCENARIO: dict[str, Any] = tomllib.loads(DEFAULT_TOML)
@@ -201,7 +212,12 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         raise bad_input("site.kind", scenario["site"]["kind"], "'default' or 'random'", "")
     if int(scenario["plan"]["n_swaths"]) < 1:
         raise bad_input("plan.n_swaths", scenario["plan"]["n_swaths"], "an integer >= 1", "")
+    if scenario["control"]["mode"] not in ("stops", "targets", "both"):
+        raise bad_input("control.mode", scenario["control"]["mode"], "stops|targets|both", "")
     _check_models(scenario)
+    from .epochs import check_change  # [change]: the second epoch's values
+
+    check_change(scenario)
     return scenario
 
 

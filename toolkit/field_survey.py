@@ -15,8 +15,11 @@ same kinds of files a real survey has, so that both take one road (docs/pipeline
     ``[certify] n_checkpoints`` independent points at random places in the site (seeded),
     heights from the truth, with a ``crs`` column.
 ``control.csv``
-    Only with ``[control] n_targets > 0``: marked targets near the survey's corners that the
-    camera tracks, surveyed with ``[control] sigma_m`` (factorgraph.control_sim).
+    Only with ``[control] n_targets > 0``: 4 control points at the survey's corners, surveyed
+    with ``[control] sigma_m`` (factorgraph.control_sim). ``[control] mode``: ``"stops"``
+    (the rover stands on them where the lawnmower turns; the stop keyframes go into
+    ``rover/stops.csv``), ``"targets"`` (marked targets 6 m outside the corners that the
+    camera tracks, ``target_id`` in the CSV) or ``"both"`` (8 points).
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from terrain import Grid
 from terrain.atomic import atomic_path, ensure_writable_dir
 from terrain.sampling import sample_dem
 
-__all__ = ["FieldSurvey", "simulated_prior", "write_field_survey"]
+__all__ = ["FieldSurvey", "simulated_control", "simulated_prior", "write_field_survey"]
 
 
 @dataclass
@@ -59,6 +62,52 @@ def simulated_prior(truth, resolution_m: float, offset_m: float, noise_sd_m: flo
     out = dem + float(offset_m) + noise
     out.attrs.update(dem.attrs)
     return out
+
+
+def simulated_control(scenario: dict[str, Any], truth, log: MeasurementLog):
+    """The ``[control]`` ground control of a simulated survey: ``(log, ControlPoints)``, or
+    ``(log, None)`` with ``n_targets = 0``.
+
+    ``mode = "stops"``: the rover stands on 4 points at the corners of its path (the
+    keyframes nearest the corners of its bounding box, ``control_sim.path_corners``; the
+    log's ``control_id`` names them); ``"targets"``: 4 marked targets 6 m outside those
+    corners, tracked by the camera (``target_id``); ``"both"``: the 8 points. Survey 1-sigma
+    ``sigma_m`` per axis, centring 1-sigma 2 cm (``read_control``'s default, so that the CSV
+    read back states the same). The draws have their own streams (children 1 and 2 of the
+    seed): the traverse is untouched.
+    """
+    from factorgraph.control import ControlPoints
+    from factorgraph.control_sim import path_corners, simulate_control, simulate_targets
+    from terrain.errors import bad_input
+
+    c, seed = scenario["control"], int(scenario["seed"])
+    n, mode, sigma = int(c["n_targets"]), str(c.get("mode", "stops")), float(c["sigma_m"])
+    if n == 0:
+        return log, None
+    if n != 4:
+        raise bad_input("control.n_targets", c["n_targets"], "0 or 4", "4: the corners")
+    if mode not in ("stops", "targets", "both"):
+        raise bad_input("control.mode", mode, "stops|targets|both", 'e.g. mode = "stops"')
+    parts = []
+    if mode in ("targets", "both"):
+        log, targets, _ = simulate_targets(log, truth, sigma_m=sigma, seed=seed)
+        parts.append(targets)
+    if mode in ("stops", "both"):
+        log, stops, _ = simulate_control(
+            log, path_corners(log), sigma_m=sigma, centring_sigma_m=0.02, seed=seed
+        )
+        parts.append(stops)
+    if len(parts) == 1:
+        return log, parts[0]
+    return log, ControlPoints(
+        np.concatenate([p.ids for p in parts]),
+        np.vstack([p.xyz for p in parts]),
+        np.vstack([p.sigma for p in parts]),
+        parts[0].crs,
+        np.concatenate([p.target_id for p in parts]),
+        0.02,
+        "simulated",
+    )
 
 
 def _write_geotiff(da, path: Path) -> Path:
@@ -106,7 +155,6 @@ def write_field_survey(
     The draws (prior error, checkpoints) come from their own stream of the scenario's seed
     (child 3 of its ``SeedSequence``), so they do not change the traverse.
     """
-    from factorgraph.control_sim import simulate_targets
     from factorgraph.field import write_field_log
 
     folder = ensure_writable_dir(folder)
@@ -124,14 +172,11 @@ def write_field_survey(
         folder / "checkpoints.csv",
     )
     control_path = None
-    c = scenario["control"]
-    if int(c["n_targets"]) > 0:
-        if int(c["n_targets"]) != 4:
-            from terrain.errors import bad_input
-
-            raise bad_input("control.n_targets", c["n_targets"], "0 or 4", "4: the corners")
-        log, ctrl, _ = simulate_targets(log, truth, sigma_m=float(c["sigma_m"]), seed=seed)
+    log, ctrl = simulated_control(scenario, truth, log)
+    if ctrl is not None:
         control_path = ctrl.write_csv(folder / "control.csv")
+    else:
+        (folder / "control.csv").unlink(missing_ok=True)  # no stale control from a rerun
     rover = write_field_log(
         log, folder / "rover", gps_format=scenario["field"]["gps_format"], crs=log.crs
     )

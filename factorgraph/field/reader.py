@@ -30,6 +30,7 @@ from .nmea import read_nmea
 from .odometry import nearest_keyframe, read_odometry, read_tilt, read_tracks
 from .report import IngestReport
 from .rtklib import read_rtklib
+from .stops import STOPS_FILE, read_stops
 
 __all__ = ["FIELD_FORMAT", "GPS_SUFFIXES", "MANIFEST", "read_field_log"]
 
@@ -39,7 +40,7 @@ MANIFEST = "survey.json"
 GPS_SUFFIXES = {".nmea": "nmea", ".nma": "nmea", ".gpx": "gpx", ".pos": "rtklib"}
 _KEYS = {
     "format", "crs", "origin", "seed", "clock_offset_s", "sync_tolerance_s", "lever_arm_m",
-    "gps", "odometry", "tilt", "tracks", "camera", "sensors",
+    "gps", "odometry", "tilt", "tracks", "camera", "sensors", "stops",
 }  # fmt: skip
 _GPS_KEYS = {"file", "format", "crs", "date", "sigma_by_quality"}
 
@@ -131,7 +132,8 @@ def read_field_log(
     ----------
     folder : path
         Folder with ``survey.json``, a GPS file (NMEA ``.nmea``, ``.gpx``, RTKLIB ``.pos``),
-        ``odometry.csv``, ``tracks.csv``, optional ``tilt.csv`` and ``camera.yaml``.
+        ``odometry.csv``, ``tracks.csv``, optional ``tilt.csv``, ``camera.yaml`` and
+        ``stops.csv`` (the keyframes the rover stood on ground-control points).
     crs : str, optional
         Projected map CRS (overrides ``survey.json`` ``crs``). The local frame is ENU metres
         from ``origin`` (``survey.json``, or the first fix rounded to the metre).
@@ -241,6 +243,22 @@ def read_field_log(
     sensors = replace(sensors, camera=camera)
     obs_k, obs_id, obs_uv, tskip = read_tracks(folder / man.get("tracks", "tracks.csv"), t_kf, tol)
     rep.tracks_skipped = dict(tskip)
+    control_id = None
+    stops_name = man.get("stops", STOPS_FILE)
+    if (folder / stops_name).is_file():
+        control_id, sskip, n_rows = read_stops(folder / stops_name, t_kf, tol)
+        on = control_id != ""
+        rep.stops = {
+            "file": stops_name,
+            "rows": int(n_rows),
+            "keyframes": int(on.sum()),
+            "points": sorted(set(control_id[on].tolist())),
+            "skipped": dict(sskip),
+        }
+        if not on.any():
+            control_id = None
+    elif "stops" in man:
+        raise bad_input(f"{MANIFEST} stops", stops_name, "an existing file", "")
     log = MeasurementLog(
         t=t_kf,
         odometry=odom,
@@ -251,6 +269,7 @@ def read_field_log(
         obs_id=obs_id,
         obs_uv=undistort(obs_uv, camera, dist),
         tilt_up=tilt_up,
+        control_id=control_id,
         sensors=sensors,
         origin=origin,
         crs=map_crs,

@@ -45,6 +45,10 @@ class IngestReport:
         Where the intrinsics came from, and whether tracks were undistorted.
     lever_arm_m : list of float
         Antenna position in the body frame (m) that was removed from the fixes.
+    stops : dict
+        ``stops.csv`` (stops on ground-control points): ``file``, ``rows``, stop
+        ``keyframes``, the ``points`` stood on and the rows ``skipped`` by reason; ``{}``
+        without the file.
     """
 
     gps_file: str = ""
@@ -63,6 +67,7 @@ class IngestReport:
     tracks_skipped: dict[str, int] = field(default_factory=dict)
     camera: str = ""
     lever_arm_m: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    stops: dict[str, Any] = field(default_factory=dict)
 
     @property
     def n_skipped(self) -> int:
@@ -91,4 +96,11 @@ class IngestReport:
             out.append(f"  {g['count']:.0f} GPS gaps, longest {g['longest_s']:.1f} s")
         out += [f"  skipped {n} observations: {r}" for r, n in sorted(self.tracks_skipped.items())]
         out.append(f"tilt {self.tilt}; camera {self.camera}")
+        if self.stops:
+            st = self.stops
+            out.append(
+                f"stops {st['file']}: {st['keyframes']} keyframes on {len(st['points'])} "
+                f"control points ({', '.join(st['points'][:8])})"
+            )
+            out += [f"  skipped {n} stop rows: {r}" for r, n in sorted(st["skipped"].items())]
         return out

@@ -28,6 +28,7 @@ from .fixes import UERE_M
 from .intrinsics import write_camera
 from .reader import FIELD_FORMAT, MANIFEST
 from .rtklib import GPS_UTC_LEAP_S
+from .stops import STOPS_FILE, write_stops
 
 __all__ = ["DEFAULT_START_UTC", "GPS_FILES", "write_field_log"]
 
@@ -206,6 +207,7 @@ def write_field_log(
     }
     _csv(out / "tracks.csv", tracks)
     write_camera(out / "camera.yaml", log.sensors.camera)
+    stops = write_stops(out / STOPS_FILE, log.t, log.control_id)  # stops on control points
     for name in set(GPS_FILES.values()) - {GPS_FILES[gps_format]}:
         (out / name).unlink(missing_ok=True)  # one GPS file per folder
     man = {
@@ -218,6 +220,8 @@ def write_field_log(
         "gps": {"file": GPS_FILES[gps_format], "format": gps_format, "crs": "EPSG:4979"},
         "sensors": log.sensors.to_dict(),
     }
+    if stops is not None:
+        man["stops"] = STOPS_FILE
     with atomic_path(out / MANIFEST) as tmp:
         tmp.write_text(json.dumps(man, indent=2) + "\n")
     return out

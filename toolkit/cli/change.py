@@ -87,16 +87,40 @@ def read_polygons(path: Path, field: str, crs: Any) -> tuple[Any, str]:
 
 
 def change_command(
-    before: Annotated[Path, typer.Argument(help="Earlier DEM: product NetCDF or GeoTIFF.")],
-    after: Annotated[Path, typer.Argument(help="Later DEM: product NetCDF or GeoTIFF.")],
+    before: Annotated[
+        Path, typer.Argument(help="Earlier DEM: a glacimap product folder, NetCDF or GeoTIFF.")
+    ],
+    after: Annotated[
+        Path, typer.Argument(help="Later DEM: a glacimap product folder, NetCDF or GeoTIFF.")
+    ],
     outline: Annotated[Path, typer.Option(help="Glacier outline (GeoPackage / GeoJSON).")],
     stable: Annotated[
         Path | None, typer.Option(help="Stable ground polygons; default: outside the outline.")
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/change"),
     coregister: Annotated[
-        bool, typer.Option(help="Co-register AFTER to BEFORE (Nuth & Kaab) on stable ground.")
-    ] = True,
+        bool | None,
+        typer.Option(
+            help="Co-register AFTER to BEFORE (Nuth & Kaab) on stable ground. Default: off on "
+            "the GP route (the maps' shared offsets are in the 1-sigma), on otherwise."
+        ),
+    ] = None,
+    samples_before: Annotated[
+        Path | None,
+        typer.Option(help="Samples CSV of BEFORE (default: samples.csv beside its map)."),
+    ] = None,
+    samples_after: Annotated[
+        Path | None,
+        typer.Option(help="Samples CSV of AFTER (default: samples.csv beside its map)."),
+    ] = None,
+    prior_before: Annotated[
+        Path | None,
+        typer.Option(help="Prior DEM of BEFORE's mean, if not where the product recorded it."),
+    ] = None,
+    prior_after: Annotated[
+        Path | None,
+        typer.Option(help="Prior DEM of AFTER's mean, if not where the product recorded it."),
+    ] = None,
     density: Annotated[float, typer.Option(help="Volume-to-mass density, kg m^-3.")] = 850.0,
     density_std: Annotated[float, typer.Option(help="1-sigma of the density.")] = 60.0,
     seed: Annotated[int, typer.Option(help="Seed of the variogram's pair subsample.")] = 0,
@@ -104,14 +128,19 @@ def change_command(
     """Elevation change (dh COG with 1-sigma band), volume and mass change with an error
     budget (JSON + CSV) and an HTML report, from two DEMs of the same glacier.
 
-    From files the 1-sigma of the volume change comes from the variogram of dh on stable
-    ground (Rolstad 2009 / Hugonnet 2022); the exact GP route needs the fitted GPs
-    (terrain.volume_change(..., models=...), see docs/change.md).
+    Route of the volume 1-sigma, stated in the output (``route``, ``route_reason``):
+    gp_structure when both inputs are glacimap products with their samples (a product folder
+    of run / process holds samples.csv; else --samples-before/--samples-after): each map's
+    GP is refitted on its samples at its recorded kernel, nugget and mean, checked to
+    reproduce the map, and its posterior covariance integrated over the outline plus each
+    survey's shared offset (as terrain.volume_change(..., models=...)); otherwise the
+    variogram of dh on stable ground (Rolstad 2009 / Hugonnet 2022). See docs/change.md.
     """
     import shapely
 
     from terrain import difference, volume_change
 
+    from ..change_inputs import locate_product
     from ..change_report import (
         band_sigma_from,
         hypsometric_profile,
@@ -122,8 +151,10 @@ def change_command(
     from ..export._files import staged_folder
 
     t0 = time.perf_counter()
-    b = read_dem(before, "BEFORE")
-    a = read_dem(after, "AFTER")
+    where_b = locate_product(before, samples_before, "BEFORE")
+    where_a = locate_product(after, samples_after, "AFTER")
+    b = read_dem(where_b.raster, "BEFORE")
+    a = read_dem(where_a.raster, "AFTER")
     crs = b.attrs["crs_wkt"]
     glacier, note_o = read_polygons(outline, "--outline", crs)
     stable_geom, note_s = (None, "")
@@ -131,10 +162,20 @@ def change_command(
         stable_geom, note_s = read_polygons(stable, "--stable", crs)
     # every check before anything is written: bad input leaves --out untouched
     _check_density((density, density_std))
+    models, route_reason, gp_notes = _gp_route(b, a, where_b, where_a, prior_before, prior_after)
+    route = "gp_structure" if models is not None else "variogram"
+    if coregister is None:
+        coregister = models is None
+        route_reason += (
+            "; not co-registered (default on the GP route: the shared offsets are in the "
+            "1-sigma, and stable ground next to a GP map absorbs part of the thinning)"
+            if models is not None
+            else "; co-registered on stable ground (default on the variogram route)"
+        )
     diff = difference(b, a, coregister=coregister, stable=stable_geom, outline=glacier)
     grid = Grid.from_dataarray(diff)
     mask = None if stable_geom is None else stable_mask(grid, stable_geom)[0]
-    vc = volume_change(diff, glacier, (density, density_std), stable=mask, seed=seed)
+    vc = volume_change(diff, glacier, (density, density_std), models=models, stable=mask, seed=seed)
     profile = hypsometric_profile(diff, glacier, band_sigma=band_sigma_from(vc, grid))
     out_dir = ensure_writable_dir(out)
     with staged_folder(out_dir) as tmp:
@@ -142,7 +183,16 @@ def change_command(
         with atomic_path(tmp / FILES["netcdf"]) as nc:
             diff.to_netcdf(nc, engine="scipy")
         extra = {
-            "inputs": {"before": str(before), "after": str(after), "outline": str(outline)},
+            "route": route,
+            "route_reason": route_reason,
+            "gp_rebuild": gp_notes,
+            "inputs": {
+                "before": str(before),
+                "after": str(after),
+                "outline": str(outline),
+                "samples_before": None if where_b.samples is None else str(where_b.samples),
+                "samples_after": None if where_a.samples is None else str(where_a.samples),
+            },
             "notes": [n for n in (note_o, note_s, diff.attrs["reprojection"]) if n],
             "coregistration": json.loads(diff.attrs["coregistration"])
             if diff.attrs["coregistration"] != "none"
@@ -152,6 +202,7 @@ def change_command(
         }
         write_volume_tables(vc, tmp / FILES["json"], tmp / FILES["csv"], **extra)
         write_change_report(tmp / FILES["report"], diff, vc, glacier, profile)
+    console.print(f"route: {route} ({route_reason})")
     console.print(
         f"dV = {vc.volume_m3:,.0f} +- {vc.volume_std_m3:,.0f} m^3 over {vc.area_m2:,.0f} m^2 "
         f"(mean dh {vc.mean_dh_m:+.3f} +- {vc.mean_dh_std_m:.3f} m; {vc.method}); "
@@ -160,3 +211,31 @@ def change_command(
     console.print(
         f"wrote {', '.join(FILES.values())} in {out_dir} ({time.perf_counter() - t0:.1f} s)"
     )
+
+
+def _gp_route(b, a, where_b, where_a, prior_b, prior_a) -> tuple[Any, str, dict[str, str]]:
+    """(the two rebuilt GPs or None, why this route, per-epoch rebuild notes)."""
+    from ..change_inputs import rebuild_gp
+
+    if where_b.samples is None and where_a.samples is None:
+        why = "variogram: neither input comes with its samples (no product folder with "
+        return None, why + "samples.csv, no --samples-before/--samples-after)", {}
+    notes, gps = {}, []
+    with console.status("rebuilding the two maps' GPs from their samples..."):
+        for name, ds, where, prior in (
+            ("before", b, where_b, prior_b),
+            ("after", a, where_a, prior_a),
+        ):
+            gp, note = rebuild_gp(ds, where, prior)
+            notes[name] = note
+            gps.append(gp)
+    if any(g is None for g in gps):
+        bad = "; ".join(
+            f"{k}: {v}" for (k, v), g in zip(notes.items(), gps, strict=True) if g is None
+        )
+        return None, f"variogram: the GP route needs both maps' GPs ({bad})", notes
+    why = (
+        "gp_structure: both inputs are glacimap GP products with their samples; their GPs "
+        "were rebuilt at the recorded hyperparameters and reproduce the maps"
+    )
+    return tuple(gps), why, notes

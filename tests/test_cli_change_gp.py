@@ -1,0 +1,181 @@
+"""``glacimap change`` on two glacimap product folders takes the GP route.
+
+Two small simulated epochs are made here the way ``glacimap reconstruct`` / ``process``
+make theirs (``toolkit.stages.reconstruct_stage``: kernel by evidence, a prior DEM file as
+the mean with its offset and scale fitted, a shared offset 1-sigma in the product), written
+as product folders (``product.nc`` + ``samples.csv`` + the prior DEM). The reference value
+is the library's own GP route on the in-memory GPs, ``terrain.volume_change(diff, outline,
+models=(gp_before, gp_after))``: the CLI, rebuilding the GPs from the files, must give the
+same volume 1-sigma. Fallbacks are checked too: no samples (variogram, said why), samples
+that do not belong to the map (variogram, said why), a missing samples file (error).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pyogrio
+import pytest
+import shapely
+import xarray as xr
+from typer.testing import CliRunner
+
+from survey.lawnmower import lawnmower
+from terrain import (
+    ElevationSamples,
+    Grid,
+    default_outline,
+    default_site,
+    difference,
+    sample_along_path,
+    second_epoch,
+    volume_change,
+)
+from terrain.synthetic import DEFAULT_SITE_BOUNDS
+from terrain.volume import outline_weights
+from toolkit.change_inputs import kernel_from_provenance, locate_product, rebuild_gp
+from toolkit.cli import app
+from toolkit.config import load_scenario
+from toolkit.export import write_cog
+from toolkit.field_survey import simulated_prior
+from toolkit.processing import prior_mean
+from toolkit.products import write_csv
+from toolkit.stages import reconstruct_stage
+
+runner = CliRunner()
+SHARED_SD = 0.085  # m, each survey's shared offset 1-sigma (benchmarks/change.py)
+
+
+def _epoch(folder, truth, path, seed, offset, grid, settings):
+    """One epoch as a product folder: samples.csv, prior.tif, product.nc."""
+    folder.mkdir()
+    rng = np.random.default_rng(seed)
+    s, _ = sample_along_path(truth, path, 300, seed=rng)
+    s = ElevationSamples(s.xy, s.z + offset, s.z_var, crs=s.crs)
+    prior = simulated_prior(truth, 75.0, 1.5, 0.3, rng)
+    pds = prior.to_dataset(name="elevation")
+    pds.attrs = dict(prior.attrs)
+    write_cog(pds, folder / "prior.tif", bands=[("elevation", "prior DEM")])
+    rec = reconstruct_stage(
+        s,
+        grid,
+        prior_mean(folder / "prior.tif", settings),
+        settings,
+        seed,
+        shared_z_std=SHARED_SD,
+        heldout_folds=0,
+    )
+    rec.product.to_netcdf(folder / "product.nc", engine="scipy")
+    write_csv(
+        folder / "samples.csv",
+        {
+            "x": s.xy[:, 0],
+            "y": s.xy[:, 1],
+            "z": s.z,
+            "z_var": s.z_var,
+            "shared_offset_std_m": np.full(s.n, SHARED_SD),
+            "crs": np.full(s.n, s.crs.to_string()),
+        },
+    )
+    return rec
+
+
+@pytest.fixture(scope="module")
+def epochs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("gp_epochs")
+    truth = default_site(resolution=4.0)
+    outline = default_outline(DEFAULT_SITE_BOUNDS)
+    after = second_epoch(truth, outline, seed=3)
+    path = lawnmower(DEFAULT_SITE_BOUNDS, 4, margin=20.0).waypoints
+    grid = Grid.from_bounds(DEFAULT_SITE_BOUNDS, 10.0)  # 60 x 60 cells
+    settings = load_scenario(overrides={"reconstruct": {"max_fit_samples": 300}})
+    rec_b = _epoch(d / "before", truth, path, 1, 0.05, grid, settings)
+    rec_a = _epoch(d / "after", after, path, 2, -0.1, grid, settings)
+    gpkg = d / "glacier.gpkg"
+    pyogrio.raw.write(
+        gpkg, np.array([shapely.to_wkb(outline)], dtype=object), [], [], geometry_type="Polygon",
+        crs="EPSG:32608",
+    )  # fmt: skip
+    W = outline_weights(grid, outline)
+    true_v = float(np.sum(W * (after - truth).interp(x=grid.x, y=grid.y).values))
+    return d, outline, gpkg, rec_b, rec_a, true_v
+
+
+def test_rebuilt_gp_reproduces_the_map(epochs):
+    d, *_ = epochs
+    rec = epochs[3]
+    ds = xr.open_dataset(d / "before" / "product.nc").load()
+    gp, note = rebuild_gp(ds, locate_product(d / "before", None, "BEFORE"))
+    assert gp is not None, note
+    assert repr(gp.kernel_) == repr(rec.gp.kernel_) and gp.nugget_ == rec.gp.nugget_
+    np.testing.assert_allclose(gp.mean_.coef_, rec.gp.mean_.coef_, rtol=1e-9)
+    xy = rec.samples.xy[:50] + 3.0
+    np.testing.assert_allclose(gp.predict(xy), rec.gp.predict(xy), atol=1e-9)
+    # the kernel comes back from the provenance exactly (JSON values, not the 4-digit repr)
+    k = kernel_from_provenance(ds.attrs["kernel"], ds.attrs["hyperparameters"])
+    np.testing.assert_array_equal(k.theta, rec.gp.kernel_.theta)
+
+
+def test_cli_gp_route_matches_the_library(epochs, tmp_path):
+    d, outline, gpkg, rec_b, rec_a, true_v = epochs
+    out = tmp_path / "out"
+    res = runner.invoke(
+        app, ["change", str(d / "before"), str(d / "after"), "--outline", str(gpkg),
+              "--out", str(out)],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "route: gp_structure" in res.output
+    vol = json.loads((out / "volume.json").read_text())
+    assert vol["route"] == "gp_structure" and vol["method"] == "gp_posterior"
+    assert "not co-registered" in vol["route_reason"] and vol["coregistration"] is None
+    # the library's GP route on the in-memory GPs: the reference
+    diff = difference(rec_b.product, rec_a.product, coregister=False)
+    ref = volume_change(diff, outline, models=(rec_b.gp, rec_a.gp))
+    assert vol["volume_m3"] == pytest.approx(ref.volume_m3, rel=1e-9)
+    assert vol["volume_std_m3"] == pytest.approx(ref.volume_std_m3, rel=1e-6)
+    for k in ("gp_before", "gp_after", "shared_offset_before", "shared_offset_after"):
+        assert vol["budget_m3"][k] == pytest.approx(ref.budget_m3[k], rel=1e-6)
+    # the shared offsets are in it: each about SHARED_SD x area (the whole map moves)
+    area = vol["area_m2"]
+    assert vol["budget_m3"]["shared_offset_before"] == pytest.approx(SHARED_SD * area, rel=0.05)
+    # and the known change is inside the interval (3 sigma)
+    assert abs(vol["volume_m3"] - true_v) < 3 * vol["volume_std_m3"]
+
+
+def test_cli_falls_back_to_variogram_and_says_why(epochs, tmp_path):
+    d, _, gpkg, *_ = epochs
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    shutil.copy(d / "before" / "product.nc", bare / "product.nc")  # no samples.csv
+    out = tmp_path / "out"
+    res = runner.invoke(
+        app, ["change", str(bare), str(d / "after"), "--outline", str(gpkg), "--out", str(out)]
+    )
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    assert vol["route"] == "variogram" and vol["method"] == "variogram"
+    assert "no samples.csv" in vol["route_reason"] and "co-registered" in vol["route_reason"]
+    # samples that are not the map's: the rebuilt GP does not reproduce it -> variogram
+    out2 = tmp_path / "out2"
+    res = runner.invoke(
+        app, ["change", str(d / "before"), str(d / "after"), "--outline", str(gpkg),
+              "--samples-before", str(d / "after" / "samples.csv"), "--out", str(out2)],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out2 / "volume.json").read_text())
+    assert vol["route"] == "variogram"
+    assert "does not reproduce the map" in vol["route_reason"]
+
+
+def test_missing_samples_file_is_an_error(epochs, tmp_path):
+    d, _, gpkg, *_ = epochs
+    out = tmp_path / "out"
+    res = runner.invoke(
+        app, ["change", str(d / "before"), str(d / "after"), "--outline", str(gpkg),
+              "--samples-after", str(tmp_path / "nope.csv"), "--out", str(out)],
+    )  # fmt: skip
+    assert res.exit_code != 0
+    assert "--samples-after" in str(res.exception)
+    assert not out.exists() or not any(out.iterdir())
