@@ -28,6 +28,7 @@ from terrain.atomic import atomic_path, ensure_writable_dir
 from terrain.synthetic import default_site, random_terrain
 
 from .config import load_scenario
+from .epochs import epoch_truth, survey_scenario, write_change_truth
 from .field_survey import write_field_survey
 from .processing import PROCESS_STAGES, ProcessResult, _json_default, process
 from .products import landmark_table, samples_table, trajectory_table
@@ -61,7 +62,13 @@ class RunResult(ProcessResult):
 
 
 def make_truth(scenario: dict[str, Any]):
-    """The true DEM of the scenario's ``[site]`` (``xarray.DataArray``, metres)."""
+    """The true DEM of the scenario's ``[site]`` (``xarray.DataArray``, metres); with
+    ``[change] epoch = 2``, after the known change (:func:`toolkit.epochs.epoch_truth`)."""
+    return epoch_truth(scenario, make_site(scenario))
+
+
+def make_site(scenario: dict[str, Any]):
+    """The scenario's ``[site]`` as it is (epoch 1)."""
     site, seed = scenario["site"], int(scenario["seed"])
     if site["kind"] == "default":
         return default_site(resolution=float(site["truth_resolution_m"]))
@@ -173,6 +180,8 @@ def run_scenario(
             return fn()
 
     truth = timed("plan", lambda: make_truth(scenario))
+    site_scenario, scenario = scenario, survey_scenario(scenario)  # epoch 2: seed + offset
+    res.settings = scenario
     plan = make_plan(scenario, truth)
 
     def _simulate():
@@ -201,6 +210,8 @@ def run_scenario(
             shutil.rmtree(out / "field", ignore_errors=True)
         raise
     res.timings.update(pres.timings)
+    if scenario["change"]["epoch"] == 2:  # the outline and the true change beside the map
+        write_change_truth(site_scenario, make_site(site_scenario), out)
     t = time.perf_counter()
     metrics = truth_metrics(truth, pres, scenario)
     loc = pres.objects["localization"]

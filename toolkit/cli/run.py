@@ -18,6 +18,14 @@ def run_command(
     ] = None,
     out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("out/run"),
     seed: Annotated[int | None, typer.Option("--seed", help="Override the seed.")] = None,
+    epoch: Annotated[
+        int | None,
+        typer.Option(
+            "--epoch",
+            help="Override [change] epoch: 2 = the site after the scenario's known change, "
+            "surveyed anew (docs/change.md).",
+        ),
+    ] = None,
     print_default: Annotated[
         bool, typer.Option("--print-default", help="Print the embedded scenario and exit.")
     ] = False,
@@ -31,7 +39,10 @@ def run_command(
     if print_default:
         print_toml()  # raw: rich wraps comments at 80 columns when stdout is not a terminal
         raise typer.Exit(0)
-    overrides = {"seed": seed} if seed is not None else None
+    overrides = {"seed": seed} if seed is not None else {}
+    if epoch is not None:
+        overrides["change"] = {"epoch": epoch}
+    overrides = overrides or None
     load_scenario(config, overrides)  # bad input fails here, before the progress display
     with stage_progress(console, STAGES) as (on_stage, on_progress):
         res = run_scenario(config, out, overrides, on_stage=on_stage, on_progress=on_progress)

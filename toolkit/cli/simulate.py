@@ -127,6 +127,10 @@ def simulate_command(
         str, typer.Option("--gps-format", help="GPS file of --format field: nmea, gpx, rtklib.")
     ] = "nmea",
     seed: Annotated[int | None, typer.Option(help="Override the scenario's seed.")] = None,
+    epoch: Annotated[
+        int | None,
+        typer.Option(help="Override [change] epoch: 2 = the site after the known change."),
+    ] = None,
     camera: Annotated[
         str,
         typer.Option(
@@ -149,6 +153,7 @@ def simulate_command(
     from terrain.grid import check_same_crs
 
     from ..config import load_scenario
+    from ..epochs import survey_scenario
     from ..export._files import staged_folder
     from ..pipeline import make_plan, make_truth, simulate_log
 
@@ -157,11 +162,15 @@ def simulate_command(
     if gps_format not in GPS_FORMATS:
         raise bad_input("--gps-format", gps_format, " or ".join(GPS_FORMATS), "pick one")
     _check_camera(camera, scene, out)
-    scenario = load_scenario(config, {"seed": seed} if seed is not None else None)
+    overrides: dict[str, Any] = {"seed": seed} if seed is not None else {}
+    if epoch is not None:
+        overrides["change"] = {"epoch": epoch}
+    scenario = load_scenario(config, overrides or None)
     survey_plan = read_plan(plan) if plan is not None else None
     out_dir = ensure_writable_dir(out)
     with console.status("building the true terrain..."):
         truth = make_truth(scenario)
+    scenario = survey_scenario(scenario)  # epoch 2: surveyed with seed + [change] seed_offset
     if survey_plan is None:
         survey_plan = make_plan(scenario, truth)
     else:
