@@ -414,9 +414,12 @@ def plan_control(log, control: ControlPoints, area_margin_m: float = 50.0) -> Co
                     "check keyframes.control_id and the control file's CRS",
                 )
     targets = {i: int(t) for i, t in enumerate(ctrl.target_id) if t >= 0}
+    seen = set(np.unique(log.obs_id).tolist())
     plan = ControlPlan(ctrl, local, {i: np.array(v) for i, v in stops.items()}, targets)
     for i, name in enumerate(ctrl.ids.tolist()):
-        if i not in stops and i not in targets:
+        if i not in stops and i in targets and targets[i] not in seen:
+            plan.unused[name] = "target_not_observed"  # its track id is not in the log
+        elif i not in stops and i not in targets:
             plan.unused[name] = "not_visited_or_tracked"
     return plan
 
@@ -425,7 +428,8 @@ def add_control_factors(plan: ControlPlan, isam, history, landmarks: set[int]) -
     """Add the stop priors and target priors of ``plan`` to ``isam`` and ``history``.
 
     ``landmarks``: ids of the tracks that became landmarks. Updates ``plan.used`` and
-    ``plan.unused`` (a target whose track never became a landmark: ``target_not_in_graph``).
+    ``plan.unused`` (a target tracked but never a landmark: ``target_not_in_graph``; one
+    never observed was marked ``target_not_observed`` by :func:`plan_control`).
     A point with ``u`` priors (stop keyframes, and its target) gives each ``sqrt(u)`` times
     its survey sigma: together they carry the survey error once.
     """
@@ -445,7 +449,7 @@ def add_control_factors(plan: ControlPlan, isam, history, landmarks: set[int]) -
     for i, lid in plan.targets.items():
         name = str(ctrl.ids[i])
         if lid not in landmarks:
-            if name not in plan.used:
+            if name not in plan.used and name not in plan.unused:  # observed, not triangulated
                 plan.unused[name] = "target_not_in_graph"
             continue
         noise = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(uses.get(i, 1)) * ctrl.sigma[i])

@@ -123,3 +123,68 @@ def test_localize_uses_stops_read_from_the_folder(stopped, tmp_path):
     assert np.sqrt(res.shared_offset_cov[2, 2]) < 0.1  # 2 cm control on a 3-minute traverse
     plain = localize(back)  # the stops without a control file: nothing to tie to
     assert plain.control == {} and np.sqrt(plain.shared_offset_cov[2, 2]) > 0.5
+
+
+#: a small seeded run (tests/test_run_products.py: a 300 m corner of the default site, two
+#: swaths, a 5 m grid) with 4 control points at the path's corners
+SMALL_RUN = """
+seed = 0
+[site]
+bounds = [526000.0, 6475000.0, 526300.0, 6475300.0]
+[plan]
+n_swaths = 2
+[reconstruct]
+resolution_m = 5.0
+max_fit_samples = 300
+n_restarts = 0
+[certify]
+n_checkpoints = 100
+n_boot = 200
+heldout_folds = 0
+[export]
+mesh = false
+[control]
+n_targets = 4
+mode = "{mode}"
+"""
+
+
+@pytest.mark.slow
+def test_glacimap_run_stops_reach_the_graph_and_the_certificate(tmp_path):
+    """``[control] mode = "stops"``: the run writes rover/stops.csv and control.csv, process
+    reads the stops back and ties the graph there; the certificate names each point and how it
+    was used. The same field folder processed without the control file uses no control and
+    says that the stops were not used."""
+    from toolkit.pipeline import run_scenario
+    from toolkit.processing import process
+
+    cfg = tmp_path / "small.toml"
+    cfg.write_text(SMALL_RUN.format(mode="stops"))
+    res = run_scenario(cfg, out=tmp_path / "run")
+    field = tmp_path / "run" / "field"
+    rows = (field / "rover" / "stops.csv").read_text().splitlines()
+    stops = {int(r.split(",")[1]): r.split(",")[2] for r in rows[1:]}  # k -> id, by time
+    corners = path_corners(res.objects["log"])  # SW, SE, NE, NW
+    assert stops == {int(k): f"GCP{i + 1}" for i, k in enumerate(corners)}
+    cert = json.loads((tmp_path / "run" / "certificate.json").read_text())
+    ctl = cert["localization"]["control"]
+    assert ctl["n_used"] == 4 and ctl["unused"] == {}
+    assert {u["id"]: u["kind"] for u in ctl["used"]} == {f"GCP{i}": "stop" for i in (1, 2, 3, 4)}
+    assert cert["inputs"]["control"].startswith("4 points (control.csv); used: GCP1 stop")
+    assert cert["ingest"]["stops"]["keyframes"] == 4
+    # 2 cm control: the stated shared vertical offset is small, the keyframes near the truth
+    assert cert["localization"]["shared_offset_std_m"][2] < 0.15
+    for u in ctl["used"]:
+        assert np.abs(u["stop_residual_m"]).max() < 0.1
+
+    plain = process(
+        field / "rover",
+        prior=field / "prior.tif",
+        checkpoints=field / "checkpoints.csv",
+        config=res.settings,
+        out=tmp_path / "plain",
+    )
+    pc = plain.summary["certificate"]
+    assert "control" not in pc["localization"] and pc["inputs"]["control"] is None
+    assert any("stops were not used" in w for w in pc["warnings"])
+    assert pc["localization"]["shared_offset_std_m"][2] > 0.3  # consumer GPS, no control

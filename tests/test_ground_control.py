@@ -236,6 +236,21 @@ def test_shared_offset_with_control_matches_the_joint_marginal(controlled):
     np.testing.assert_allclose(res.shared_offset_cov, A @ joint @ A.T, rtol=1e-4, atol=1e-8)
 
 
+def test_a_target_no_observation_carries_is_reported_not_observed(short_log):
+    """A target id that no feature observation carries (the camera never saw the mark) is
+    ``target_not_observed``; a tracked one is planned as a target (``target_not_in_graph`` is
+    left for a tracked mark that never became a landmark)."""
+    from factorgraph.control import plan_control
+
+    xyz = short_log.truth["xyz"][[10]] + np.r_[short_log.origin, 0.0]
+    never = int(short_log.obs_id.max()) + 1000
+    plan = plan_control(short_log, ControlPoints(["T9"], xyz, 0.02, UTM, target_id=[never]))
+    assert plan.unused == {"T9": "target_not_observed"} and plan.targets == {0: never}
+    seen = int(short_log.obs_id[0])
+    plan = plan_control(short_log, ControlPoints(["T1"], xyz, 0.02, UTM, target_id=[seen]))
+    assert plan.unused == {} and plan.targets == {0: seen}
+
+
 def test_bad_control_names_the_point(short_log):
     log, ctrl, _ = simulate_control(short_log, [0, 120])
     far = dataclasses.replace(ctrl, xyz=ctrl.xyz + [0.0, 5000.0, 0.0])

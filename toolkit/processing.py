@@ -208,6 +208,19 @@ def process(
                 "control": None if ctrl is None else f"{ctrl.n} points ({ctrl.source})",
                 "checkpoints": None if cps is None else str(getattr(cps, "source", "")),
             }
+            if ctrl is not None:  # which control the graph used: stop / target, and why not
+                c = loc.control or {}
+                used = [f"{u['id']} {u['kind']}" for u in c.get("used", [])]
+                unused = [f"{k} {v}" for k, v in c.get("unused", {}).items()]
+                cert["inputs"]["control"] += f"; used: {', '.join(used) or 'none'}" + (
+                    f"; unused: {', '.join(unused)}" if unused else ""
+                )
+            stops = mlog.control_id is not None and bool((mlog.control_id != "").any())
+            if stops and ctrl is None:
+                cert.setdefault("warnings", []).append(
+                    "the log has stops on control points (stops.csv) but no control file was "
+                    "given: the stops were not used (pass --control)"
+                )
         with stage("export"):
             truth_on_grid = None
             if truth is not None:
