@@ -49,6 +49,16 @@ _PARTS = {
     "matern52": lambda v, ls, b: Matern(v, ls, nu=2.5, **b),
 }
 FAMILY = ("se", "matern32", "matern52", "se+se", "matern32+matern32", "matern52+matern52")
+#: Mean-square differentiability of each part (Matérn nu; SE: infinitely smooth).
+_SMOOTHNESS = {"se": np.inf, "matern32": 1.5, "matern52": 2.5}
+#: BIC margin below which the evidence is not "strong" (Kass & Raftery 1995: 2-6 positive,
+#: 6-10 strong): within it the roughest candidate is kept (docs/terrain.md "Near ties").
+BIC_TIE = 6.0
+
+
+def smoothness(name: str) -> float:
+    """Smoothness of a family name: the smallest nu of its parts (``inf`` for SE only)."""
+    return min(_SMOOTHNESS[part] for part in name.split("+"))
 
 
 def candidate_names(kernel: Any) -> tuple[str, ...]:
@@ -263,7 +273,8 @@ def select_kernel(
     gap: float | None = None,
     rng: np.random.Generator,
 ) -> KernelChoice:
-    """Fit each candidate by the Vecchia likelihood and keep the best BIC.
+    """Fit each candidate by the Vecchia likelihood and keep the best BIC (near ties, within
+    :data:`BIC_TIE`, to the roughest candidate).
 
     Parameters
     ----------
@@ -352,10 +363,17 @@ def select_kernel(
         )
     ok.sort(key=lambda r_: r_[key])
     best = ok[0]
+    if criterion == "bic":
+        # Near ties go to the roughest kernel: the evidence cannot tell them apart, and a
+        # smoother-than-true kernel is what makes sigma over-confident in the gaps between
+        # swaths (measured on real DEMs: docs/terrain.md "Near ties").
+        tied = [r_ for r_ in ok if r_["bic"] - best["bic"] <= BIC_TIE]
+        best = min(tied, key=lambda r_: (smoothness(r_["name"]), r_["bic"]))
+    low = ok[0]["bic"]
     for r_ in rows:
         r_["selected"] = r_ is best
-        r_["delta_bic"] = None if r_["bic"] is None else r_["bic"] - best["bic"]
-    rows.sort(key=lambda r_: np.inf if r_["bic"] is None else r_[key])
+        r_["delta_bic"] = None if r_["bic"] is None else r_["bic"] - low
+    rows.sort(key=lambda r_: (not r_["selected"], np.inf if r_["bic"] is None else r_[key]))
     k, nug, _, _ = fits[best["name"]]
     # Refine the winner on larger conditioning sets (closer to the exact Eq 9).
     refine = _Search(*args, m_refine, rng)

@@ -209,7 +209,8 @@ def test_heldout_block_in_the_certificate(cert, cert_heldout, heldout):
     for fold, ref in zip(block["folds"], heldout.to_dict()["folds"], strict=True):
         assert fold["z_mean"] == -ref["z_mean"] and fold["rmse_m"] == ref["rmse_m"]
     assert block["verdict"] == heldout.verdict() and block["coverage_95"] < 0.9
-    assert any("95 % coverage" in v and "too small" in v for v in block["verdict"])
+    assert any("95 %" in v and "too small" in v for v in block["verdict"])
+    assert block["map_coverage_95"] == heldout.pooled["map_coverage_95"] < 0.9
     as_json = json.loads(certificate_json(cert_heldout))["heldout_calibration"]
     assert heldout_block(heldout.to_dict()) == block == as_json
     assert heldout_block(as_json) == block  # the block re-reads itself
@@ -247,7 +248,15 @@ def test_report_draws_heldout_curve_and_verdict(demo, cert_heldout, tmp_path):
 def test_report_says_when_heldout_coverage_is_nominal(demo, cert_heldout, tmp_path):
     from toolkit.certify import heldout_block
 
-    good = dict(cert_heldout["heldout_calibration"], coverage_68=0.70, coverage_95=0.94)
+    good = dict(
+        cert_heldout["heldout_calibration"],
+        coverage_68=0.70,
+        coverage_95=0.94,
+        map_coverage_68=0.69,
+        map_coverage_95=0.95,
+        map_coverage_68_interval=[0.6, 0.75],
+        map_coverage_95_interval=[0.9, 0.97],
+    )
     cert = dict(cert_heldout, heldout_calibration=heldout_block(good))
     assert cert["heldout_calibration"]["verdict"] == []
     html = write_report(

@@ -109,8 +109,15 @@ def test_hand_reference_values_and_observation_noise(lattice):
 
 def test_true_kernel_is_calibrated_on_held_out_blocks(draw):
     cv = cross_validate(_gp().fit(draw), draw, seed=0)
-    assert cv.block_size == 3 * ELL and cv.block_size_rule.startswith("3 x shortest")
+    assert cv.block_size_rule.startswith("distance-matched")
     p = cv.pooled
+    # held-out samples sit about as far from their training data as the map's cells do
+    ratio = p["heldout_distance_median_m"] / p["map_distance_median_m"]
+    assert 0.7 <= ratio <= 1.4
+    # the map-level check (noise removed) brackets nominal with the true kernel
+    assert p["map_coverage_68_interval"][0] <= 0.6827 <= p["map_coverage_68_interval"][1]
+    assert p["map_coverage_95_interval"][0] <= 0.95 <= p["map_coverage_95_interval"][1]
+    assert 0.3 <= p["variance_ratio"] <= 2.0 and 0.0 < p["noise_share"] < 0.5
     assert abs(p["coverage_95"] - 0.95) <= 0.05
     assert abs(p["coverage_68"] - 0.6827) <= 0.12
     assert abs(p["z_std"] - 1.0) <= 0.2 and abs(p["z_mean"]) <= 0.3
@@ -126,12 +133,13 @@ def test_over_confident_map_under_covers_and_verdict_says_so(draw):
     cv = cross_validate(over, draw, seed=0)
     assert cv.pooled["coverage_95"] < 0.75 and cv.pooled["z_std"] > 2.0
     text = " ".join(cv.verdict())
-    assert "held-out 95 % coverage" in text and "below nominal" in text and "too small" in text
+    assert "held-out 95 % map coverage" in text and "below nominal" in text and "too small" in text
+    assert cv.pooled["map_coverage_95_interval"][1] < 0.5
     # Random point folds (1 m blocks: one sample each) flatter the map next to its tracks.
     rand = cross_validate(over, draw, block_size=1.0, seed=0)
     assert rand.n_blocks == draw.n
-    assert rand.pooled["rmse_m"] < 0.8 * cv.pooled["rmse_m"]
-    assert rand.pooled["coverage_95"] > cv.pooled["coverage_95"] + 0.1
+    assert rand.pooled["rmse_m"] < 0.9 * cv.pooled["rmse_m"]
+    assert rand.pooled["coverage_95"] > cv.pooled["coverage_95"] + 0.05
 
 
 def test_folds_are_whole_blocks_disjoint_balanced_and_cover_all_samples(draw):
@@ -189,23 +197,55 @@ def test_unfitted_estimator_and_refit_all(draw):
     gp = TerrainGP(SquaredExponential(VAR, ELL), mean=0.0, n_restarts=0, method="exact")
     cv = cross_validate(gp, draw, seed=0)  # fits a clone on all samples first
     assert not hasattr(gp, "kernel_")  # the caller's estimator is left unfitted
-    ell = float(cv.hyperparameters["kernel"].split("lengthscale=")[1].rstrip(")"))
-    assert cv.block_size == pytest.approx(3 * ell, rel=1e-3)
+    assert "lengthscale=" in cv.hyperparameters["kernel"]
     assert len({r["kernel"] for r in cv.folds}) == 1
     honest = cross_validate(gp, draw, seed=0, refit="all")
-    extent = float(np.ptp(draw.xy, axis=0).max())
-    assert honest.block_size == pytest.approx(extent / 10) and honest.hyperparameters is None
+    # the block side depends on the geometry only: same as with fixed hyperparameters
+    assert honest.block_size == cv.block_size and honest.hyperparameters is None
     assert len({r["kernel"] for r in honest.folds}) == honest.n_folds  # refitted per fold
     assert isinstance(honest, CrossValidation) and honest.refit == "all"
 
 
 def test_default_block_is_halved_until_there_are_enough_blocks(draw):
-    # l = 100 m: 3 l = 300 m covers the 196 m x ~166 m box in 1 block; 150 m gives 4,
-    # 75 m gives 9 (< 2 x 5 folds), 37.5 m gives 30.
+    # Two tight clusters at opposite corners of a 200 m box: the map's cells lie a median
+    # ~60 m from data, so every distance-matched block holds a whole cluster (2 blocks <
+    # 2 x 5 folds) and the length-scale rule takes over: l = 100 m, 3 l = 300 m, halved until
+    # the 18 m clusters are cut into >= 10 non-empty blocks.
+    g = np.arange(0.0, 20.0, 2.0)
+    a = np.array([(x, y) for x in g for y in g])
+    samples = ElevationSamples(np.vstack([a, a + 180.0]), np.zeros(200), 0.01)
     gp = TerrainGP(SquaredExponential(VAR, 100.0), mean=0.0, optimize=False, method="exact")
-    cv = cross_validate(gp.fit(draw), draw, seed=0)
-    assert cv.block_size == 37.5 and cv.n_blocks >= 10
-    assert cv.block_size_rule.endswith("halved 3 x to get >= 10 non-empty blocks")
+    cv = cross_validate(gp.fit(samples), samples, seed=0)
+    assert cv.block_size_rule.startswith("3 x shortest fitted length scale (100 m), halved")
+    halvings = int(cv.block_size_rule.split("halved ")[1].split(" x")[0])
+    assert cv.block_size == pytest.approx(300.0 / 2**halvings) and cv.n_blocks >= 10
+
+
+def test_map_check_sees_a_too_small_sigma_that_noise_hides():
+    """Hand reference: a stub map says 0 m with a 1-sigma of 0.1 m where the surface errors
+    are N(0, 0.3^2) and the samples carry N(0, 0.5^2) of stated noise. A held-out sample's
+    z = r / sqrt(0.01 + 0.25) has sd sqrt(0.34 / 0.26) = 1.14: 91 % inside +-1.96, within
+    5 points of nominal, so the measurement-level check passes. The map's error variance is
+    kappa = (0.34 - 0.25) / 0.01 = 9 x what it states: map 95 % coverage
+    2 Phi(1.96 / 3) - 1 = 0.486, 68 %: 2 Phi(1 / 3) - 1 = 0.261."""
+    rng = np.random.default_rng(5)
+    g = np.arange(0.5, 60.0, 1.0)
+    xy = np.array([(x, y) for x in g for y in g])
+    z = rng.normal(0.0, 0.3, len(xy)) + rng.normal(0.0, 0.5, len(xy))
+
+    class Stub(ZeroGP):
+        def predict(self, xy, return_std=False, include_nugget=False):
+            sd = np.full(len(xy), 0.1)
+            return (np.zeros(len(xy)), sd) if return_std else np.zeros(len(xy))
+
+    cv = cross_validate(Stub(), ElevationSamples(xy, z, 0.25), seed=0)
+    p = cv.pooled
+    assert abs(p["coverage_95"] - 0.91) <= 0.03  # the measurement-level view
+    assert p["variance_ratio"] == pytest.approx(9.0, rel=0.2)
+    assert p["map_coverage_95"] == pytest.approx(0.486, abs=0.05)
+    assert p["map_coverage_68"] == pytest.approx(0.261, abs=0.04)
+    assert p["noise_share"] == pytest.approx(0.25 / 0.26, abs=1e-9)
+    assert any("95 % map coverage" in v and "too small" in v for v in cv.verdict())
 
 
 def test_bad_input(draw, lattice):

@@ -161,7 +161,9 @@ def reconstruct_stage(
     heldout, why = None, "heldout_folds = 0"
     if heldout_folds:
         try:
-            heldout = cross_validate(gp, samples, n_folds=int(heldout_folds), seed=seed)
+            heldout = cross_validate(
+                gp, samples, n_folds=int(heldout_folds), seed=seed, targets=grid
+            )
             why = ""
         except InputError as exc:  # too few samples or blocks: said, not fatal
             why = str(exc)
