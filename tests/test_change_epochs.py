@@ -45,7 +45,7 @@ def test_epoch_2_is_the_site_plus_the_known_change():
     assert dh.values.min() < -2.0 and dh.values.max() <= 0.0  # thinning, 0.5-3 m (+features)
     assert after.attrs["epoch"] == 2 and after.attrs["change_seed"] == 5
     s2s = survey_scenario(s2)
-    assert s2s["seed"] == s2["seed"] + 1000 and s2["seed"] == 0  # the input is not changed
+    assert s2s["seed"] == s2["seed"] + 2 and s2["seed"] == 0  # the input is not changed
 
 
 @pytest.mark.parametrize(
@@ -82,7 +82,7 @@ def test_simulate_epoch_2_surveys_the_changed_site(tmp_path):
         np.testing.assert_allclose(lm[ok, 2], expect[ok], atol=1e-6)
         if epoch == 2:
             assert np.sum(_at(dh, lm)[ok] < -0.5) > 100  # the survey sees the thinning
-    assert logs[1].seed == 0 and logs[2].seed == 1000
+    assert logs[1].seed == 0 and logs[2].seed == 2
     b1, b2 = logs[1].truth["gps_bias"], logs[2].truth["gps_bias"]
     n = min(len(b1), len(b2))
     assert not np.allclose(b1[:n], b2[:n])  # a fresh GPS bias draw
@@ -120,7 +120,7 @@ def test_two_epochs_from_one_scenario_differ_by_the_known_change(tmp_path):
         assert res.exit_code == 0, res.output
     e1, e2 = tmp_path / "e1", tmp_path / "e2"
     cert2 = json.loads((e2 / "certificate.json").read_text())
-    assert cert2["scenario"]["seed"] == 1000 and cert2["scenario"]["change"]["epoch"] == 2
+    assert cert2["scenario"]["seed"] == 2 and cert2["scenario"]["change"]["epoch"] == 2
     with xr.open_dataset(e1 / "product.nc") as p1, xr.open_dataset(e2 / "product.nc") as p2:
         p1, p2 = p1.load(), p2.load()
     s = load_scenario()

@@ -92,7 +92,7 @@ geojson = true
 
 [change]                       # a second epoch: the site after a known change (docs/change.md)
 epoch = 1                      # 1: the site as is; 2: after the change below, surveyed anew
-seed_offset = 1000             # epoch 2 is surveyed with seed + seed_offset (new GPS bias, ...)
+seed_offset = 2                # epoch 2 is surveyed with seed + seed_offset (new GPS bias, ...)
 change_seed = 0                # seed of the change's ablation features (terrain.surface_change)
 outline_margin = 0.2           # glacier outline: terrain.default_outline(site bounds, margin)
 min_thinning_m = 0.5           # thinning at the highest glacier cell (m)

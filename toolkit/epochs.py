@@ -57,7 +57,7 @@ def check_change(scenario: dict[str, Any]) -> None:
             raise bad_input(f"change.{key}", c[key], "an integer >= 0", "")
     if c["epoch"] == 2 and c["seed_offset"] == 0:
         raise bad_input(
-            "change.seed_offset", 0, "> 0 (epoch 2 is a new survey)", "e.g. seed_offset = 1000"
+            "change.seed_offset", 0, "> 0 (epoch 2 is a new survey)", "e.g. seed_offset = 2"
         )
     if not 0 < c["min_thinning_m"] <= c["max_thinning_m"]:
         raise bad_input(
