@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from terrain.errors import bad_input
-from terrain.grid import Grid
+from terrain.grid import Grid, north_up
 
 from .log import MeasurementLog
 from .sensors import SensorSuite
@@ -27,6 +27,7 @@ class Surface:
     """
 
     def __init__(self, dem, origin: np.ndarray):
+        dem = north_up(dem)  # values paired with the grid's rows (north first) below
         grid = Grid.from_dataarray(dem)
         x, y = grid.x - origin[0], grid.y - origin[1]
         self.bounds = (x[0], y[-1], x[-1], y[0])  # cell-centre hull: west, south, east, north

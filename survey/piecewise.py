@@ -29,7 +29,7 @@ import numpy as np
 import shapely
 
 from terrain.errors import bad_input
-from terrain.grid import Grid, check_same_crs
+from terrain.grid import Grid, check_same_crs, north_up
 
 from .lawnmower import _check_common, reference_swaths
 from .plan import SurveyPlan, build_plan, heading_vectors
@@ -44,6 +44,7 @@ _FLAT = 1e-12  # m/m: gradients smaller than this count as flat (no lateral move
 def _prior_gradient(prior: Any, bounds: tuple[float, ...], crs: Any):
     """Precompute the prior's gradient once; return (grid, gx, gy) with gx, gy (ny, nx), m/m."""
     try:
+        prior = north_up(prior)  # gradient rows north first, as the grid's
         grid = Grid.from_dataarray(prior)
     except (KeyError, AttributeError, TypeError, ValueError) as exc:
         raise bad_input(

@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import bad_input
 from .gp import TerrainGP
-from .grid import Grid
+from .grid import Grid, north_up
 from .kernels import PaperReading, SquaredExponential
 from .metrics import rmse
 from .samples import ElevationSamples
@@ -77,6 +77,7 @@ def tune_paper_grid(
     gammas = np.atleast_1d(np.asarray(gammas, dtype=float))
     if alphas.size < 1 or gammas.size < 1:
         raise bad_input("alphas/gammas", (alphas.size, gammas.size), "non-empty", "")
+    truth_patch = north_up(truth_patch)  # values in the order of grid.xy()
     grid = Grid.from_dataarray(truth_patch)
     truth = np.asarray(truth_patch.values, dtype=float).ravel()
     query = grid.xy()

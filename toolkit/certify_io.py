@@ -26,7 +26,7 @@ from pyproj import CRS
 
 from terrain import Grid
 from terrain.errors import bad_input
-from terrain.grid import check_same_crs
+from terrain.grid import check_same_crs, north_up
 
 __all__ = [
     "COLUMN_ALIASES",
@@ -377,6 +377,8 @@ def _from_xarray(obj: Any, source: dict[str, Any]) -> DemRaster:
         raise bad_input("dem", type(obj).__name__, "a Dataset, DataArray or file path", "")
     if tuple(elev.dims) != ("y", "x"):
         raise bad_input("DEM dims", tuple(elev.dims), "('y', 'x')", "ds.transpose('y', 'x')")
+    obj, elev = north_up(obj), north_up(elev)  # rows north first, as the grid's
+    std = None if std is None else north_up(std)
     grid = Grid.from_dataarray(obj)
     z = np.asarray(elev.values, dtype=float)
     s = None if std is None else np.asarray(std.values, dtype=float)

@@ -10,6 +10,7 @@ import numpy as np
 
 from terrain import Grid
 from terrain.errors import bad_input
+from terrain.grid import north_up
 
 __all__ = ["Product", "bilinear", "provenance_strings", "read_product"]
 
@@ -59,9 +60,9 @@ def read_product(ds: Any) -> Product:
     Parameters
     ----------
     ds : xarray.Dataset
-        Variables ``elevation`` and ``elevation_std`` (m) on dims ``(y, x)``, x increasing and
-        y decreasing, the CRS in ``attrs["crs_wkt"]`` or ``attrs["crs"]``. Dask-backed
-        variables are computed.
+        Variables ``elevation`` and ``elevation_std`` (m) on dims ``(y, x)``, stored in
+        either row or column order (sorted north-up here), the CRS in ``attrs["crs_wkt"]``
+        or ``attrs["crs"]``. Dask-backed variables are computed.
 
     Raises
     ------
@@ -101,6 +102,7 @@ def read_product(ds: Any) -> Product:
             "set ds.attrs['crs'] = 'EPSG:32608' (or the map's projected CRS)",
         )
     try:
+        ds = north_up(ds)  # rows north first, as the grid's
         grid = Grid.from_dataarray(ds)
     except (KeyError, IndexError) as exc:
         raise bad_input(
