@@ -175,18 +175,11 @@ def mc_pair(seed: int) -> dict:
     }
 
 
-def summarize(pairs: list[dict]) -> list[dict]:
-    err = np.array([p["volume_m3"] - p["true_volume_m3"] for p in pairs])
-    err2 = np.array([p["volume_shifted_m3"] - p["true_volume_m3"] for p in pairs])
-    err3 = np.array([p["volume_coreg_m3"] - p["true_volume_m3"] for p in pairs])
+def z_rows(pairs: list[dict], methods) -> list[dict]:
+    """One row per ``(name, sigma key, errors)``: z = error / sigma, its mean, spread and
+    95 % coverage, the median sigma and the RMS error (m^3)."""
     rows = []
-    for name, key, e in (
-        ("glacimap (GP posterior + offsets)", "sigma_glacimap_m3", err),
-        ("glacimap, co-registered on stable", "sigma_glacimap_coreg_m3", err3),
-        ("per-cell independent (control)", "sigma_independent_m3", err),
-        ("variogram of stable dh (control)", "sigma_variogram_m3", err),
-        ("variogram, stable median removed", "sigma_variogram_shifted_m3", err2),
-    ):
+    for name, key, e in methods:
         s = np.array([p[key] for p in pairs])
         z = e / s
         rows.append(
@@ -201,6 +194,125 @@ def summarize(pairs: list[dict]) -> list[dict]:
             }
         )
     return rows
+
+
+def summarize(pairs: list[dict]) -> list[dict]:
+    err = np.array([p["volume_m3"] - p["true_volume_m3"] for p in pairs])
+    err2 = np.array([p["volume_shifted_m3"] - p["true_volume_m3"] for p in pairs])
+    err3 = np.array([p["volume_coreg_m3"] - p["true_volume_m3"] for p in pairs])
+    return z_rows(
+        pairs,
+        (
+            ("glacimap (GP posterior + offsets)", "sigma_glacimap_m3", err),
+            ("glacimap, co-registered on stable", "sigma_glacimap_coreg_m3", err3),
+            ("per-cell independent (control)", "sigma_independent_m3", err),
+            ("variogram of stable dh (control)", "sigma_variogram_m3", err),
+            ("variogram, stable median removed", "sigma_variogram_shifted_m3", err2),
+        ),
+    )
+
+
+#: The chain Monte Carlo's smaller plan: a 300 m x 300 m square in the middle of the default
+#: site (the truth and the prior DEM cover the whole 600 m site, so every landmark is over
+#: the prior), 4 lawnmower swaths with a 10 m margin; the glacier is default_outline of it.
+CHAIN_BOUNDS = (526150.0, 6475150.0, 526450.0, 6475450.0)
+CHAIN_SWATHS = 4
+
+
+def _chain_epoch(truth, plan, seed: int, grid):
+    """One epoch through the real chain: simulate (GPS with Gauss-Markov bias, odometry,
+    camera tracks) -> iSAM2 -> select (Eq 7) -> reconstruct_stage (kernel by evidence, the
+    simulated 75 m prior DEM as the mean, offset fitted), as glacimap run does. Returns the
+    reconstruction, the realised survey offset (mean vertical error of the keyframes, m) and
+    the selection counts."""
+    from factorgraph.sensors import SensorSuite
+    from factorgraph.simulate import simulate_traverse
+    from toolkit.config import load_scenario
+    from toolkit.field_survey import simulated_prior
+    from toolkit.processing import prior_mean
+    from toolkit.stages import localize_stage, reconstruct_stage, select_stage
+
+    settings = load_scenario(overrides={"seed": seed})
+    log = simulate_traverse(truth, plan, SensorSuite.from_dict(settings["sensors"]), seed=seed)
+    loc = localize_stage(log, settings)
+    sel = select_stage(loc, settings)
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(3,)))
+    p = settings["prior"]
+    prior = simulated_prior(truth, p["resolution_m"], p["offset_m"], p["noise_sd_m"], rng)
+    kept = sel.table["kept"]
+    rec = reconstruct_stage(
+        sel.samples,
+        grid,
+        prior_mean(prior, settings),
+        settings,
+        seed,
+        landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
+        landmark_rel_z_std=sel.table["z_std_m"][kept],
+        shared_z_std=float(sel.shared_offset_std_m[2]),
+        heldout_folds=0,
+    )
+    offset = float(np.mean(loc.keyframe_xyz[:, 2] - log.truth["xyz"][:, 2]))
+    return rec, offset, sel.counts
+
+
+def chain_pair(seed: int) -> dict:
+    """A pair of epochs through the real chain on the smaller plan: the same plan, the site
+    after second_epoch(seed) for epoch 2, each survey with its own seed (2k, 2k + 1)."""
+    from survey.lawnmower import lawnmower
+    from terrain import Grid, default_outline, default_site, difference, second_epoch
+    from terrain.volume import outline_weights, volume_change
+
+    t0 = time.perf_counter()
+    truth = default_site(resolution=2.0)
+    outline = default_outline(CHAIN_BOUNDS)
+    after_truth = second_epoch(truth, outline, seed=seed)
+    plan = lawnmower(CHAIN_BOUNDS, CHAIN_SWATHS, margin=10.0)
+    grid = Grid.from_bounds(CHAIN_BOUNDS, MC_RESOLUTION)
+    rec_b, off_b, cnt_b = _chain_epoch(truth, plan, 2 * seed, grid)
+    rec_a, off_a, cnt_a = _chain_epoch(after_truth, plan, 2 * seed + 1, grid)
+    diff = difference(rec_b.product, rec_a.product, coregister=False)
+    W = outline_weights(grid, outline)
+    true_v = float(np.sum(W * (after_truth - truth).interp(x=grid.x, y=grid.y).values))
+    gpv = volume_change(diff, outline, models=(rec_b.gp, rec_a.gp))
+    var = volume_change(diff, outline)  # the variogram of dh outside the outline
+    resp = [gpv.details[f"gp_{k}"]["offset_response_m2"] for k in ("before", "after")]
+    return {
+        "seed": seed,
+        "true_volume_m3": true_v,
+        "volume_m3": gpv.volume_m3,
+        "sigma_glacimap_m3": gpv.volume_std_m3,
+        "sigma_gp_only_m3": float(np.hypot(gpv.budget_m3["gp_before"], gpv.budget_m3["gp_after"])),
+        "sigma_independent_m3": gpv.independent_std_m3,
+        "sigma_variogram_m3": var.volume_std_m3,
+        "budget_m3": gpv.budget_m3,
+        "offsets_realised_m": [off_b, off_a],
+        "offset_error_m3": off_a * resp[1] - off_b * resp[0],
+        "shared_offset_std_m": [
+            rec_b.product.attrs["shared_vertical_offset_std_m"],
+            rec_a.product.attrs["shared_vertical_offset_std_m"],
+        ],
+        "n_samples": [int(rec_b.samples.n), int(rec_a.samples.n)],
+        "kernels": [repr(rec_b.gp.kernel_), repr(rec_a.gp.kernel_)],
+        "selection_counts": [cnt_b, cnt_a],
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def summarize_chain(pairs: list[dict]) -> list[dict]:
+    """z = error / sigma per method; the last row removes each pair's realised survey offsets
+    (their response times the keyframes' mean vertical error) and divides by the GP term
+    alone: what is left is the GP's error plus the along-track correlated error."""
+    err = np.array([p["volume_m3"] - p["true_volume_m3"] for p in pairs])
+    rel = err - np.array([p["offset_error_m3"] for p in pairs])
+    return z_rows(
+        pairs,
+        (
+            ("glacimap (GP posterior + offsets)", "sigma_glacimap_m3", err),
+            ("per-cell independent (control)", "sigma_independent_m3", err),
+            ("variogram of stable dh (control)", "sigma_variogram_m3", err),
+            ("GP term only, realised offsets removed", "sigma_gp_only_m3", rel),
+        ),
+    )
 
 
 def speed_part(n_samples: int = 1500) -> dict:
@@ -247,7 +359,8 @@ def speed_part(n_samples: int = 1500) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=50)
-    ap.add_argument("--parts", default="coreg,mc,speed")
+    ap.add_argument("--parts", default="coreg,mc,speed", help="coreg, mc, chain, speed")
+    ap.add_argument("--chain-pairs", type=int, default=20)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/change.json")
     args = ap.parse_args()
     parts = args.parts.split(",")
@@ -291,6 +404,44 @@ def main() -> None:
         cols += [("rms_error_m3", "rms err m3", ".0f"), ("z_mean", "z mean", "+.2f")]
         cols += [("z_spread", "z spread", ".2f"), ("coverage_95", "in 95%", ".2f")]
         print(table(summary, cols))
+    if "chain" in parts:
+        from threadpoolctl import threadpool_limits
+
+        pairs, failures = [], []
+        block: dict = {
+            "pairs": pairs,
+            "failures": failures,
+            "settings": {
+                "site": "terrain.default_site(2.0); plan and outline on the square "
+                f"{CHAIN_BOUNDS} (terrain.default_outline of it)",
+                "plan": f"survey.lawnmower {CHAIN_SWATHS} swaths, margin 10 m (both epochs)",
+                "chain": "factorgraph.simulate_traverse (default sensors, seed 2k / 2k+1) -> "
+                "toolkit.stages.localize_stage -> select_stage -> reconstruct_stage (75 m "
+                "simulated prior DEM as the mean), no ground control",
+                "grid_resolution_m": MC_RESOLUTION,
+            },
+        }
+        payload["chain_monte_carlo"] = block
+        with threadpool_limits(1):
+            for seed in range(args.chain_pairs):
+                try:
+                    pairs.append(chain_pair(seed))
+                except Exception as exc:  # noqa: BLE001 - a failed pair is counted, not fatal
+                    failures.append({"seed": seed, "error": f"{type(exc).__name__}: {exc}"})
+                    print(f"chain pair {seed}: failed ({failures[-1]['error']})", flush=True)
+                    continue
+                p = pairs[-1]
+                z = (p["volume_m3"] - p["true_volume_m3"]) / p["sigma_glacimap_m3"]
+                print(f"chain pair {seed}: z {z:+.2f}  ({p['seconds']:.1f} s)", flush=True)
+                block["summary"] = summarize_chain(pairs)
+                write_json(args.out, payload)  # after every pair: a cut-short run keeps them
+        cols = [("method", "method", ""), ("n", "n", "d")]
+        cols += [("median_sigma_m3", "med sigma m3", ".0f"), ("rms_error_m3", "rms err m3", ".0f")]
+        cols += [("z_mean", "z mean", "+.2f"), ("z_spread", "z spread", ".2f")]
+        cols += [("coverage_95", "in 95%", ".2f")]
+        if pairs:
+            print(table(block["summary"], cols))
+        print(f"{len(pairs)} pairs, {len(failures)} failed")
     if "speed" in parts:
         payload["speed"] = speed_part()
         print(payload["speed"])

@@ -105,12 +105,14 @@ def test_change_truth_files_round_trip(tmp_path):
 
 @pytest.mark.slow
 def test_two_epochs_from_one_scenario_differ_by_the_known_change(tmp_path):
-    """``glacimap run`` twice (epoch 1 and 2) on a small scenario, then ``glacimap change``
-    on the two folders: the GP route; the map difference against the known change on the
-    truth grid is inside the stated 1-sigma, per cell and for the volume."""
+    """``glacimap run`` twice (epoch 1 and 2) on a small scenario (a 300 m corner of the
+    default site, 2 swaths, 5 m grid, as tests/test_run_products.py), then ``glacimap
+    change`` on the two folders: the GP route; the map difference against the known change
+    on the map grid is inside the stated 1-sigma, per cell and for the volume."""
     cfg = tmp_path / "small.toml"
     cfg.write_text(
-        "[plan]\nn_swaths = 3\n[reconstruct]\nresolution_m = 6.0\n"
+        "[site]\nbounds = [526000.0, 6475000.0, 526300.0, 6475300.0]\n[plan]\nn_swaths = 2\n"
+        "[reconstruct]\nresolution_m = 5.0\nmax_fit_samples = 300\nn_restarts = 0\n"
         "[certify]\nn_boot = 200\nheldout_folds = 0\n[export]\nmesh = false\n"
     )
     for epoch in (1, 2):
@@ -123,7 +125,7 @@ def test_two_epochs_from_one_scenario_differ_by_the_known_change(tmp_path):
     assert cert2["scenario"]["seed"] == 2 and cert2["scenario"]["change"]["epoch"] == 2
     with xr.open_dataset(e1 / "product.nc") as p1, xr.open_dataset(e2 / "product.nc") as p2:
         p1, p2 = p1.load(), p2.load()
-    s = load_scenario()
+    s = load_scenario(cfg)
     dh_true = true_change(s, make_site(s))
     dh_true = dh_true.interp(x=p1.x, y=p1.y).values
     z = (p2.elevation.values - p1.elevation.values - dh_true) / np.hypot(
@@ -131,6 +133,7 @@ def test_two_epochs_from_one_scenario_differ_by_the_known_change(tmp_path):
     )
     inside = np.abs(z[np.isfinite(z)]) <= 1.96
     assert inside.mean() > 0.85, inside.mean()
+    assert np.nanmin(dh_true) < -1.0  # the glacier is in this corner
     out = tmp_path / "change"
     res = runner.invoke(
         app, ["change", str(e1), str(e2), "--outline", str(e2 / "glacier_outline.gpkg"),

@@ -16,10 +16,9 @@ import json
 import shutil
 
 import numpy as np
-import pyogrio
 import pytest
-import shapely
 import xarray as xr
+from test_cli_change import _write_polygon
 from typer.testing import CliRunner
 
 from survey.lawnmower import lawnmower
@@ -93,11 +92,7 @@ def epochs(tmp_path_factory):
     settings = load_scenario(overrides={"reconstruct": {"max_fit_samples": 300}})
     rec_b = _epoch(d / "before", truth, path, 1, 0.05, grid, settings)
     rec_a = _epoch(d / "after", after, path, 2, -0.1, grid, settings)
-    gpkg = d / "glacier.gpkg"
-    pyogrio.raw.write(
-        gpkg, np.array([shapely.to_wkb(outline)], dtype=object), [], [], geometry_type="Polygon",
-        crs="EPSG:32608",
-    )  # fmt: skip
+    gpkg = _write_polygon(d / "glacier.gpkg", outline)
     W = outline_weights(grid, outline)
     true_v = float(np.sum(W * (after - truth).interp(x=grid.x, y=grid.y).values))
     return d, outline, gpkg, rec_b, rec_a, true_v
