@@ -307,6 +307,116 @@ def case_gate(gate_px: float) -> dict[str, Any]:
     return {"rows": rows, "gate_px": gate_px, "seed": seed}
 
 
+class _RssSampler:
+    """Resident set size of this process (MB), sampled every ``every_s`` in a thread; the
+    peak before and after a mark (``mark()``)."""
+
+    def __init__(self, every_s: float = 0.2):
+        import threading
+
+        self.peaks = [0.0]
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(every_s,), daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def rss_mb() -> float:
+        text = Path("/proc/self/status").read_text()
+        return int(text.split("VmRSS:")[1].split()[0]) / 1024
+
+    def _run(self, every_s: float) -> None:
+        while not self._stop.wait(every_s):
+            self.peaks[-1] = max(self.peaks[-1], self.rss_mb())
+
+    def mark(self) -> None:
+        self.peaks.append(self.rss_mb())
+
+    def stop(self) -> list[float]:
+        self._stop.set()
+        self._thread.join()
+        self.peaks[-1] = max(self.peaks[-1], self.rss_mb())
+        return self.peaks
+
+
+def case_scale(density: float, seed: int, swaths: int = 4) -> dict[str, Any]:
+    """The default survey (``swaths`` lawnmower, vision camera) with ideal tracks at
+    ``density`` texture points per m^2 (1.5: ~50,000 landmarks in the graph): wall time and
+    peak RSS of localize (online pass, refinement, retry, marginals) and the selection."""
+    from scipy.stats import chi2
+
+    from factorgraph import SensorSuite, localize, simulate_traverse
+    from factorgraph.localize import LocalizeParams
+    from toolkit.config import load_scenario
+    from toolkit.pipeline import make_plan, make_truth, select_samples
+
+    over = {"seed": seed, "plan": {"n_swaths": swaths}}
+    over["sensors"] = {"camera": {"texture_density_per_m2": density}}
+    scenario = load_scenario(None, over)
+    truth = make_truth(scenario)
+    plan = make_plan(scenario, truth)
+    from factorgraph.vision import vision_sensors
+
+    sensors = vision_sensors(SensorSuite.from_dict(scenario["sensors"]))
+    rss = _RssSampler()
+    t0 = time.perf_counter()
+    log = simulate_traverse(truth, plan, sensors, seed=seed)
+    sim_s = time.perf_counter() - t0
+    rss.mark()
+    t_online = [0.0]
+
+    def progress(k: int, n: int) -> None:
+        if k == n:
+            t_online[0] = time.perf_counter()
+            rss.mark()
+
+    t0 = time.perf_counter()
+    loc = localize(log, LocalizeParams(**scenario["localize"]), progress=progress)
+    loc_s = time.perf_counter() - t0
+    after_s = time.perf_counter() - t_online[0]
+    rss.mark()
+    t1 = time.perf_counter()
+    sel = select_samples(loc, scenario)
+    sel_s = time.perf_counter() - t1
+    peaks = rss.stop()
+    e = loc.landmark_xyz - loc.true_landmarks()
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])
+    ids, counts = np.unique(log.obs_id, return_counts=True)
+    step = np.asarray(loc.step_s)
+    row = {
+        "case": f"density {density:g} / m^2, seed {seed}",
+        "density_per_m2": density,
+        "keyframes": log.n_keyframes,
+        "observations": int(log.obs_id.size),
+        "tracks": int(ids.size),
+        "tracks_ge3_views": int((counts >= 3).sum()),
+        "landmarks_in_graph": loc.n_landmarks,
+        "landmarks_selected": int(sel.counts["kept"]),
+        "never_initialised": dict(loc.dropped),
+        "landmark_nees": float(nees.mean()),
+        "landmark_in_2sigma": float(np.mean(nees < chi2.ppf(0.9545, 3))),
+        "simulate_s": sim_s,
+        "localize_s": loc_s,
+        "online_s": float(step.sum()),
+        "online_step_p50_s": float(np.median(step)),
+        "online_step_max_s": float(step.max()),
+        "online_last100_s": float(step[-100:].sum()),
+        "rebuilds": int(loc.n_rebuilds),
+        "after_online_s": after_s,
+        "refine_s": float(loc.refine.get("seconds", 0.0)),
+        "retry_s": float(loc.refine.get("retry_seconds", 0.0)),
+        "retry_recovered": int(loc.refine.get("retry_recovered", 0)),
+        "marginals_s": float(loc.marginal_s),
+        "select_s": sel_s,
+        "rss_after_simulate_mb": peaks[0],
+        "rss_peak_online_mb": peaks[1],
+        "rss_peak_refine_marginals_mb": peaks[2],
+        "rss_peak_select_mb": peaks[3],
+        "bandwidth_keyframes": int(loc.bandwidth),
+    }
+    print(row, flush=True)
+    return {"rows": [row], "seed": seed, "load_at_end": list(__import__("os").getloadavg())}
+
+
 CHAIN_COLS = [
     ("case", "case", ""),
     ("landmarks_in_graph", "in graph", "d"),
@@ -319,6 +429,21 @@ CHAIN_COLS = [
     ("gps_only_horizontal_rmse_m", "GPS-only m", ".2f"),
     ("map_rmse_m", "map RMSE", ".3f"),
     ("map_coverage_95", "cov95", ".3f"),
+]
+
+
+SCALE_COLS = [
+    ("case", "case", ""),
+    ("landmarks_in_graph", "in graph", "d"),
+    ("observations", "obs", "d"),
+    ("localize_s", "localize s", ".0f"),
+    ("online_s", "online s", ".0f"),
+    ("refine_s", "refine s", ".0f"),
+    ("retry_s", "retry s", ".0f"),
+    ("marginals_s", "marg s", ".0f"),
+    ("rss_peak_online_mb", "RSS online", ".0f"),
+    ("rss_peak_refine_marginals_mb", "RSS after", ".0f"),
+    ("landmark_nees", "NEES", ".2f"),
 ]
 
 
@@ -347,7 +472,10 @@ def main() -> None:
 
         results = json.loads(args.out.read_text()).get("cases", {})
     for case in args.cases:
-        if case.startswith("gate"):  # e.g. gate8: chain_sunny with an 8 px gate
+        if case.startswith("scale"):  # e.g. scale1.5: ideal tracks at 1.5 points / m^2
+            res = in_subprocess(case_scale, float(case[5:]), args.seed)
+            cols = SCALE_COLS
+        elif case.startswith("gate"):  # e.g. gate8: chain_sunny with an 8 px gate
             res = in_subprocess(case_gate, float(case[4:]))
             cols = CHAIN_COLS
         elif case == "frontend":

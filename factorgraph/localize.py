@@ -27,6 +27,8 @@ from .field.gate import gate_log
 from .log import MeasurementLog
 from .rebuild import rebuild_isam
 from .result import LocalizationResult
+from .track_init import retry_failed_tracks
+from .track_init import triangulate_track as _triangulate
 
 __all__ = ["LocalizeParams", "localize"]
 
@@ -72,6 +74,9 @@ class LocalizeParams:
     # points and the batch refinement (factorgraph.refine) takes the final estimate to the MAP.
     relinearize: bool = False
     refine: bool = True  # staged batch refinement after the last keyframe
+    # triangulate the tracks that failed the gates online again at the refined poses
+    # (factorgraph/track_init.py; measured in docs/vision.md)
+    retry_failed_tracks: bool = True
     refine_max_iterations: int = 20  # Levenberg-Marquardt steps (each stage)
     refine_rtol: float = 1e-4  # stop when a step lowers the graph error by less (relative)
 
@@ -162,6 +167,18 @@ class _Tracks:
     dropped: Counter = field(default_factory=Counter)
     first_k: dict[int, int] = field(default_factory=dict)
     init_distance: dict[int, float] = field(default_factory=dict)
+    # tracks with >= min_views views that failed the gates online: views and reason
+    failed: dict[int, list[tuple[int, np.ndarray]]] = field(default_factory=dict)
+    failed_reason: dict[int, str] = field(default_factory=dict)
+
+    def drop(self, lid: int) -> None:
+        """Count pending track ``lid`` as never initialised; keep it for a retry when it
+        failed a gate (track_init.retry_failed_tracks)."""
+        why = self.last_try.pop(lid, "too_few_views")
+        self.dropped[why] += 1
+        if why != "too_few_views":
+            self.failed[lid], self.failed_reason[lid] = self.pending[lid], why
+        del self.pending[lid]
 
 
 def _isam_params(params: LocalizeParams):
@@ -182,39 +199,6 @@ def _isam_params(params: LocalizeParams):
             th.insert((ch, np.full(n, 1e9)))
         p.setRelinearizeThreshold(th)
     return p
-
-
-def _triangulate(views, poses, camera, bTc, K, params: LocalizeParams):
-    """Gated triangulation of one track; returns ``(point or None, reason)``."""
-    import gtsam
-
-    cams = gtsam.CameraSetCal3_S2()
-    meas = []
-    centres = []
-    for k, uv in views:
-        wTc = poses[k].compose(bTc)
-        cams.append(gtsam.PinholeCameraCal3_S2(wTc, K))
-        meas.append(uv)
-        centres.append(wTc.translation())
-    tp = gtsam.TriangulationParameters(
-        1e-9, False, camera.range_max_m * 2.0, params.max_reprojection_px
-    )
-    res = gtsam.triangulateSafe(cams, meas, tp)
-    if not res.valid():
-        return None, "triangulation_degenerate" if res.degenerate() else "triangulation_failed"
-    pt = np.asarray(res.get())
-    rays = pt - np.asarray(centres)
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    cosines = np.clip(rays @ rays.T, -1.0, 1.0)
-    if math.degrees(math.acos(cosines.min())) < params.min_parallax_deg:
-        return None, "low_parallax"
-    for cam, uv in zip(cams, meas, strict=False):
-        pc = cam.pose().transformTo(pt)
-        if pc[2] < params.min_depth_m or np.linalg.norm(pc) > camera.range_max_m * 1.5:
-            return None, "depth_out_of_bounds"
-        if np.linalg.norm(cam.project(pt) - uv) > params.max_reprojection_px:
-            return None, "reprojection_gate"
-    return pt, "ok"
 
 
 def _drop_landmarks_at_cameras(graph, estimate, tracks: _Tracks, bTc, min_depth_m: float):
@@ -419,8 +403,7 @@ def localize(
                 tracks.init_distance[lid] = float(np.linalg.norm(pt - guess.translation()))
                 del tracks.pending[lid], tracks.last_try[lid]
             for lid in [j for j, v in tracks.pending.items() if v[-1][0] < k and j not in seen_now]:
-                tracks.dropped[tracks.last_try.pop(lid, "too_few_views")] += 1
-                del tracks.pending[lid]
+                tracks.drop(lid)
         try:
             step_graph, step_values = gtsam.NonlinearFactorGraph(graph), gtsam.Values(values)
             step_graph.push_back(lm_graph)
@@ -447,17 +430,21 @@ def localize(
         step_s[k] = time.perf_counter() - t0
         if progress is not None:
             progress(k + 1, log.n_keyframes)
-    for why in tracks.last_try.values():
-        tracks.dropped[why] += 1
+    for lid in list(tracks.last_try):
+        tracks.drop(lid)
     if ctrl_plan is not None:
         add_control_factors(ctrl_plan, isam, history, tracks.active)
     estimate = isam.calculateEstimate()
     graph = history
-    refine_report = None
+    refine_report, retry = None, {}
     if params.refine:
         estimate, refine_report = refine_estimate(
             graph, estimate, bTc, K, params.refine_max_iterations, params.refine_rtol
         )
+        if params.retry_failed_tracks:  # at the refined poses (factorgraph/track_init.py)
+            graph, estimate, retry = retry_failed_tracks(
+                graph, estimate, tracks, camera, bTc, K, pix_noise, params
+            )
     graph = _drop_landmarks_at_cameras(graph, estimate, tracks, bTc, params.min_depth_m)
     t0 = time.perf_counter()
     marg = landmark_marginals(
@@ -475,7 +462,7 @@ def localize(
         n_rebuilds=n_rebuilds,
         step_s=step_s,
         marginal_s=marginal_s,
-        refine=refine_report.as_dict() if refine_report is not None else {},
+        refine={**refine_report.as_dict(), **retry} if refine_report is not None else {},
     )
     if ctrl_plan is not None:
         result.control = control_report(ctrl_plan, result)

@@ -1,0 +1,171 @@
+"""Landmark initialisation from feature tracks: the gated triangulation the online pass runs
+when a track has enough views, and a second try for the tracks that failed it, at the
+refined (smoothed) poses.
+
+Why the second try
+------------------
+The online pass triangulates a track with the online poses of its views, once it has
+``min_views`` views and again at each later view. Those poses are the iSAM2 linear solution at
+the insertion points (docs/architecture.md §5; factorgraph/refine.py): their relative errors
+can push a correct track past the reprojection gate. Image tracks are short (3.2 views at
+2 m keyframe spacing) and are usually tried once or twice. Measured on the default survey in
+sun (benchmarks/vision.py, docs/vision.md): most tracks that failed online pass the same gate
+at the refined poses. Ideal 1 px tracks on a dense graph (50,000 landmarks) fail online too
+(the linear online solution is worse with more landmarks) and are recovered the same way.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+__all__ = ["retry_failed_tracks", "triangulate_track"]
+
+
+def triangulate_track(views, poses, camera, bTc, K, params) -> tuple[np.ndarray | None, str]:
+    """Gated triangulation of one track; returns ``(point or None, reason)``.
+
+    Parameters
+    ----------
+    views : list of (int, ndarray of shape (2,))
+        Keyframe index and measured pixel (u, v) of each view.
+    poses : mapping int -> gtsam.Pose3
+        Body poses (world frame) of at least the keyframes in ``views``.
+    camera : factorgraph.sensors.CameraModel
+        Range limits (m).
+    bTc : gtsam.Pose3
+        Camera mounting in the body frame.
+    K : gtsam.Cal3_S2
+        Intrinsics (px).
+    params : factorgraph.localize.LocalizeParams
+        ``max_reprojection_px``, ``min_parallax_deg``, ``min_depth_m``.
+
+    Returns
+    -------
+    point : ndarray of shape (3,) or None
+        World point (m) when every gate passes.
+    reason : str
+        ``ok`` or why the track was rejected (``triangulation_failed`` / ``_degenerate``,
+        ``low_parallax``, ``depth_out_of_bounds``, ``reprojection_gate``).
+    """
+    import gtsam
+
+    cams = gtsam.CameraSetCal3_S2()
+    meas = []
+    centres = []
+    for k, uv in views:
+        wTc = poses[k].compose(bTc)
+        cams.append(gtsam.PinholeCameraCal3_S2(wTc, K))
+        meas.append(uv)
+        centres.append(wTc.translation())
+    tp = gtsam.TriangulationParameters(
+        1e-9, False, camera.range_max_m * 2.0, params.max_reprojection_px
+    )
+    res = gtsam.triangulateSafe(cams, meas, tp)
+    if not res.valid():
+        return None, "triangulation_degenerate" if res.degenerate() else "triangulation_failed"
+    pt = np.asarray(res.get())
+    rays = pt - np.asarray(centres)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    cosines = np.clip(rays @ rays.T, -1.0, 1.0)
+    if math.degrees(math.acos(cosines.min())) < params.min_parallax_deg:
+        return None, "low_parallax"
+    for cam, uv in zip(cams, meas, strict=False):
+        pc = cam.pose().transformTo(pt)
+        if pc[2] < params.min_depth_m or np.linalg.norm(pc) > camera.range_max_m * 1.5:
+            return None, "depth_out_of_bounds"
+        if np.linalg.norm(cam.project(pt) - uv) > params.max_reprojection_px:
+            return None, "reprojection_gate"
+    return pt, "ok"
+
+
+def retry_failed_tracks(
+    graph, estimate, tracks, camera, bTc, K, pix_noise, params
+) -> tuple[Any, Any, dict[str, Any]]:
+    """Triangulate again, at the poses of ``estimate``, every track the online pass rejected;
+    add the ones that pass the same gates and re-optimise the whole graph.
+
+    Parameters
+    ----------
+    graph : gtsam.NonlinearFactorGraph
+        Every factor of the localization.
+    estimate : gtsam.Values
+        The refined estimate (poses ``x``, landmarks ``l``, ...).
+    tracks : factorgraph.localize._Tracks
+        Its ``failed`` tracks (id -> views) are tried; a recovered track leaves ``failed``,
+        its online reason count in ``dropped`` is lowered and it joins ``active``.
+    camera, bTc, K, params
+        As :func:`triangulate_track`; ``params.refine_max_iterations`` and
+        ``params.refine_rtol`` bound the Levenberg-Marquardt pass.
+    pix_noise : gtsam.noiseModel.Base
+        Noise model of the projection factors (the online one, Huber included).
+
+    Returns
+    -------
+    graph, estimate : gtsam.NonlinearFactorGraph, gtsam.Values
+        With the recovered landmarks; ``estimate`` re-optimised when any was added.
+    report : dict
+        ``retry_tried``, ``retry_recovered``, ``retry_still_failed`` (by reason),
+        ``retry_iterations``, ``retry_error_start`` / ``retry_error_final`` and
+        ``retry_seconds``.
+    """
+    import gtsam
+
+    from .refine import levenberg_marquardt
+
+    t0 = time.perf_counter()
+    X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
+    cache: dict[int, Any] = {}
+
+    def pose(k: int):
+        if k not in cache:
+            cache[k] = estimate.atPose3(X(k))
+        return cache[k]
+
+    class _Poses:
+        def __getitem__(self, k: int):
+            return pose(k)
+
+    still: dict[str, int] = {}
+    new_graph = gtsam.NonlinearFactorGraph(graph)
+    new_values = gtsam.Values(estimate)
+    recovered = 0
+    for lid, views in sorted(tracks.failed.items()):
+        pt, why = triangulate_track(views, _Poses(), camera, bTc, K, params)
+        if pt is None:
+            still[why] = still.get(why, 0) + 1
+            continue
+        new_values.insert(L(lid), pt)
+        for kv, uv in views:
+            new_graph.add(
+                gtsam.GenericProjectionFactorCal3_S2(uv, pix_noise, X(kv), L(lid), K, bTc)
+            )
+        tracks.active.add(lid)
+        tracks.first_k[lid] = views[0][0]
+        last = pose(views[-1][0]).translation()
+        tracks.init_distance[lid] = float(np.linalg.norm(pt - last))
+        online_reason = tracks.failed_reason.pop(lid)
+        tracks.dropped[online_reason] -= 1
+        if tracks.dropped[online_reason] == 0:
+            del tracks.dropped[online_reason]
+        recovered += 1
+    for lid in [lid for lid in tracks.failed if lid in tracks.active]:
+        del tracks.failed[lid]
+    report: dict[str, Any] = {
+        "retry_tried": recovered + sum(still.values()),
+        "retry_recovered": recovered,
+        "retry_still_failed": dict(sorted(still.items())),
+        "retry_iterations": 0,
+    }
+    if recovered:
+        report["retry_error_start"] = new_graph.error(new_values)
+        new_values, report["retry_iterations"], hist = levenberg_marquardt(
+            new_graph, new_values, params.refine_max_iterations, params.refine_rtol
+        )
+        report["retry_error_final"] = hist[-1]
+        graph, estimate = new_graph, new_values
+    report["retry_seconds"] = time.perf_counter() - t0
+    return graph, estimate, report

@@ -1,0 +1,117 @@
+"""Tracks that failed the online triangulation gates are tried again at the refined poses
+(factorgraph/track_init.py): recovered ones enter the graph with their factors and leave
+the never-initialised counts; the others stay counted by reason."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+from factorgraph import SensorSuite, simulate_traverse  # noqa: E402
+from factorgraph.localize import LocalizeParams, _Tracks, localize  # noqa: E402
+from factorgraph.track_init import retry_failed_tracks, triangulate_track  # noqa: E402
+from factorgraph.vision import vision_sensors  # noqa: E402
+
+
+def _setup():
+    """Three keyframes 2 m apart along x, pinned by tight priors; the vision camera."""
+    camera = vision_sensors(SensorSuite()).camera
+    K = camera.calibration()
+    bTc = gtsam.Pose3(camera.body_T_camera())
+    X = gtsam.symbol_shorthand.X
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    prior = gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
+    poses = {}
+    for k in range(3):
+        poses[k] = gtsam.Pose3(gtsam.Rot3(), np.array([2.0 * k, 0.0, 0.0]))
+        graph.add(gtsam.PriorFactorPose3(X(k), poses[k], prior))
+        values.insert(X(k), poses[k])
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, camera.pixel_sigma_px)
+    return camera, K, bTc, graph, values, poses, noise
+
+
+def _views(point, poses, K, bTc, offsets=None):
+    out = []
+    for k, pose in poses.items():
+        uv = gtsam.PinholeCameraCal3_S2(pose.compose(bTc), K).project(point)
+        out.append((k, np.asarray(uv) + (0 if offsets is None else offsets[k])))
+    return out
+
+
+def test_retry_recovers_a_consistent_track_and_keeps_counting_a_bad_one():
+    camera, K, bTc, graph, values, poses, noise = _setup()
+    params = LocalizeParams()
+    good_point = np.array([12.0, 1.0, 0.0])  # 12 m ahead on the ground, 1 m left
+    tracks = _Tracks()
+    tracks.failed[5] = _views(good_point, poses, K, bTc)
+    tracks.failed_reason[5] = "triangulation_failed"
+    # a wrong association: the middle view 30 px off (no point explains all three views)
+    bad = _views(np.array([10.0, -1.0, 0.0]), poses, K, bTc, {0: 0, 1: np.array([30.0, 0]), 2: 0})
+    tracks.failed[9], tracks.failed_reason[9] = bad, "reprojection_gate"
+    tracks.dropped = Counter({"triangulation_failed": 1, "reprojection_gate": 1})
+    n_before = graph.size()
+    g2, est, rep = retry_failed_tracks(graph, values, tracks, camera, bTc, K, noise, params)
+    L = gtsam.symbol_shorthand.L
+    assert rep["retry_tried"] == 2 and rep["retry_recovered"] == 1
+    assert est.exists(L(5)) and not est.exists(L(9))
+    np.testing.assert_allclose(est.atPoint3(L(5)), good_point, atol=1e-6)  # exact views
+    assert g2.size() == n_before + 3  # one projection factor per view
+    assert tracks.active == {5} and 5 not in tracks.failed and 9 in tracks.failed
+    # the recovered track leaves the never-initialised counts, the bad one stays there
+    assert tracks.dropped == Counter({"reprojection_gate": 1})
+    assert sum(rep["retry_still_failed"].values()) == 1
+    assert tracks.init_distance[5] == pytest.approx(np.linalg.norm(good_point - [4.0, 0, 0]))
+
+
+def test_triangulate_track_gates():
+    camera, K, bTc, _, _, poses, _ = _setup()
+    params = LocalizeParams()
+    pt, why = triangulate_track(
+        _views(np.array([12.0, 1.0, 0.0]), poses, K, bTc), poses, camera, bTc, K, params
+    )
+    assert why == "ok" and np.allclose(pt, [12.0, 1.0, 0.0], atol=1e-6)
+    # 2 px on one view passes a 4 px gate, 6 px does not
+    off = {0: 0, 1: np.array([0.0, 2.0]), 2: 0}
+    assert (
+        triangulate_track(
+            _views(np.array([12.0, 1.0, 0.0]), poses, K, bTc, off), poses, camera, bTc, K, params
+        )[1]
+        == "ok"
+    )
+    off = {0: 0, 1: np.array([0.0, 12.0]), 2: 0}
+    _, why = triangulate_track(
+        _views(np.array([12.0, 1.0, 0.0]), poses, K, bTc, off), poses, camera, bTc, K, params
+    )
+    assert why in ("reprojection_gate", "triangulation_failed")
+
+
+def test_localize_counts_every_track_once_with_and_without_retry():
+    """On a short ideal-track traverse with a tight 1.5 px gate (many online failures):
+    landmarks + never-initialised tracks are the same total either way, and the retry
+    recovers tracks (the refined poses are better than the online ones)."""
+    from terrain.synthetic import default_site
+
+    dem = default_site(4.0)
+    x, y = dem.x.values, dem.y.values
+    wp = np.array([[x[20], y[70]], [x[20] + 80.0, y[70] + 6.0]])
+    sensors = vision_sensors(SensorSuite(keyframe_dt_s=2.0))
+    log = simulate_traverse(dem, wp, sensors, seed=3)
+    out = {}
+    for retry in (False, True):
+        loc = localize(log, LocalizeParams(max_reprojection_px=1.5, retry_failed_tracks=retry))
+        out[retry] = loc
+    n_tracks = np.unique(log.obs_id).size
+    for loc in out.values():
+        assert loc.n_landmarks + sum(loc.dropped.values()) == n_tracks
+    rep = out[True].refine
+    assert rep["retry_recovered"] > 0
+    assert out[True].n_landmarks > out[False].n_landmarks
+    assert rep["retry_tried"] == sum(
+        v for key, v in out[False].dropped.items() if key not in ("too_few_views",)
+    ) - out[False].dropped.get("degenerate_in_graph", 0) - out[False].dropped.get(
+        "depth_after_refine", 0
+    )
