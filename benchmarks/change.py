@@ -1,7 +1,8 @@
 """Glacier change: co-registration against xDEM, the volume-change 1-sigma by Monte Carlo, and
 the time of a 1 m change map.
 
-Three parts, one JSON (``benchmarks/results/change.json``):
+Four parts, one JSON each run (``benchmarks/results/change.json``; the chain part is run on its
+own into ``benchmarks/results/change_chain.json``):
 
 ``coreg``  Two copies of a real DEM (the olinda-shaped 640 m site of scripts/real_dems.py at
            1 m, sampled on two 2 m lattices 3 m east / 2 m north apart, +1 m vertical, with
@@ -13,10 +14,16 @@ Three parts, one JSON (``benchmarks/results/change.json``):
            (default constructor), differenced, integrated over the glacier outline. The
            volume error over sigma_dV: glacimap (GP posterior + shared offsets) against the
            negative controls (per-cell independent sigma; the variogram of stable dh).
+``chain``  The Monte Carlo through the real chain on a smaller plan: each epoch simulated
+           (GPS with its Gauss-Markov bias, odometry, camera tracks), localized by iSAM2,
+           selected (Eq 7) and reconstructed as ``glacimap run`` does; no drawn offsets: the
+           surveys' offsets and along-track errors are what the localization leaves.
 ``speed``  ``difference`` + ``volume_change`` (GP route and variogram route) for two 600 m x
            600 m products at 1 m (the two reconstructions excluded, timed separately).
 
     python benchmarks/change.py --pairs 50 --out benchmarks/results/change.json
+    python benchmarks/change.py --parts chain --chain-pairs 20 \
+        --out benchmarks/results/change_chain.json
 """
 
 from __future__ import annotations
