@@ -125,6 +125,7 @@ def test_cli_gp_route_matches_the_library(epochs, tmp_path):
     vol = json.loads((out / "volume.json").read_text())
     assert vol["route"] == "gp_structure" and vol["method"] == "gp_posterior"
     assert "not co-registered" in vol["route_reason"] and vol["coregistration"] is None
+    assert "Route gp_structure" in (out / "change_report.html").read_text()
     # the library's GP route on the in-memory GPs: the reference
     diff = difference(rec_b.product, rec_a.product, coregister=False)
     ref = volume_change(diff, outline, models=(rec_b.gp, rec_a.gp))

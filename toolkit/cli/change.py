@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -176,6 +177,8 @@ def change_command(
     grid = Grid.from_dataarray(diff)
     mask = None if stable_geom is None else stable_mask(grid, stable_geom)[0]
     vc = volume_change(diff, glacier, (density, density_std), models=models, stable=mask, seed=seed)
+    note = f"{vc.details['method_note']}. Route {route_reason}"  # the HTML report shows it
+    vc = dataclasses.replace(vc, details={**vc.details, "method_note": note})
     profile = hypsometric_profile(diff, glacier, band_sigma=band_sigma_from(vc, grid))
     out_dir = ensure_writable_dir(out)
     with staged_folder(out_dir) as tmp:
