@@ -11,9 +11,11 @@ paper's perfect 8 x 8 prior and checkpoints drawn with ``default_rng(seed)``. ``
 process`` runs ``glacimap run`` itself (:func:`toolkit.pipeline.run_scenario`): the survey
 written as field files (NMEA, ``stops.csv``, ``control.csv``, a noisy offset ``prior.tif``,
 its own 400 checkpoints) and processed by ``toolkit.process`` with no truth; the cases are
-the scenario's ``[control] n_targets = 4`` with ``mode`` stops / targets / both, and an
-RTK-grade GPS (:data:`RTK_GPS`, written as NMEA fix quality 4 with GST sigmas). Its rows go
-to ``process_rows`` of the JSON (the other keys are kept).
+the scenario's ``[control] n_targets = 4`` with ``mode`` stops / targets / both, an
+RTK-grade GPS (:data:`RTK_GPS`, written as NMEA fix quality 4 with GST sigmas), and two
+diagnostics with the satellite DEM written without its 0.3 m per-cell noise (``_prior0``)
+and one with 8 swaths (``_swaths8``).
+Its rows go to ``process_rows`` of the JSON (the other keys are kept).
 
 Cases, on the same simulated log (same seed, same bytes: the control draws have their own
 stream, ``factorgraph.control_sim``):
@@ -58,7 +60,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._harness import in_subprocess, table, write_json  # noqa: E402
 
 CASES = ("none", "stops4", "stops2", "stops8", "targets4")
-PROCESS_CASES = ("none", "stops4", "targets4", "both4", "rtk", "rtk_stops4")
+PROCESS_CASES = (
+    *("none", "stops4", "targets4", "both4", "rtk", "rtk_stops4"),
+    *("stops4_prior0", "rtk_prior0"),  # diagnostics: [prior] noise_sd_m = 0
+    "rtk_swaths8",  # diagnostic: [plan] n_swaths = 8 (swaths 75 m apart, not 150 m)
+)
 #: RTK-fixed GPS: 2 cm horizontal, 3 cm vertical white noise per fix (the receiver's GST
 #: sigmas, fix quality 4) and a small correlated part (multipath, base coordinates): 1 cm
 #: horizontal, 2 cm vertical Gauss-Markov bias (tau 60 s, the default).
@@ -180,8 +186,16 @@ def run_case(case: str, seed: int, with_map: bool) -> dict[str, Any]:
 
 
 def process_overrides(case: str, seed: int) -> dict[str, Any]:
-    """Scenario overrides of a ``--route process`` case."""
+    """Scenario overrides of a ``--route process`` case (``_prior0``: the satellite DEM
+    written without its per-cell noise, the datum offset kept: what the map owes the prior;
+    ``_swaths8``: 8 swaths instead of 4: what it owes the gaps between swaths)."""
     over: dict[str, Any] = {"seed": seed}
+    if case.endswith("_prior0"):
+        case = case.removesuffix("_prior0")
+        over["prior"] = {"noise_sd_m": 0.0}
+    if case.endswith("_swaths8"):
+        case = case.removesuffix("_swaths8")
+        over["plan"] = {"n_swaths": 8}
     mode = {"stops4": "stops", "targets4": "targets", "both4": "both", "rtk_stops4": "stops"}
     if case in mode:
         over["control"] = {"n_targets": 4, "mode": mode[case]}
@@ -206,6 +220,31 @@ def _landmark_errors(loc, sim_log, ids=None) -> dict[str, float]:
         "h_rmse_m": float(np.sqrt(np.mean((e[:, :2] ** 2).sum(1)))),
         "n": int(lid.size),
     }
+
+
+#: bands of distance from a map cell to the nearest selected landmark (m)
+DISTANCE_BANDS = ((0, 5), (5, 15), (15, 30), (30, 60), (60, 1e9))
+
+
+def map_error_by_distance(product, truth, xy: np.ndarray) -> dict[str, dict[str, float]]:
+    """Map error against the truth by distance to the nearest sample ``xy`` (n, 2): per band
+    the share of cells, RMSE and mean (m). On the swaths the map is the rover's; between
+    them (swaths 150 m apart, the camera's 25 m reach) it leans on the satellite prior."""
+    from scipy.spatial import cKDTree
+
+    err = product["elevation"].values - truth.interp(x=product.x, y=product.y).values
+    X, Y = np.meshgrid(product.x.values, product.y.values)
+    dist = cKDTree(xy).query(np.column_stack([X.ravel(), Y.ravel()]))[0].reshape(X.shape)
+    ok = np.isfinite(err)
+    out = {}
+    for lo, hi in DISTANCE_BANDS:
+        m = ok & (dist >= lo) & (dist < hi)
+        out[f"{lo}-{hi:g}"] = {
+            "share": float(m.sum() / ok.sum()),
+            "rmse_m": float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None,
+            "mean_m": float(err[m].mean()) if m.any() else None,
+        }
+    return out
 
 
 def run_process_case(case: str, seed: int) -> dict[str, Any]:
@@ -246,6 +285,9 @@ def run_process_case(case: str, seed: int) -> dict[str, Any]:
         "map_coverage95": metrics["gp_satellite"].get("coverage_95"),
         "delaunay_rmse_m": float(metrics["delaunay"]["rmse"]),
         "kernel": cert["reconstruction"]["kernel"],
+        "map_by_distance": map_error_by_distance(
+            res.objects["reconstruction"].product, res.objects["truth"], sel.samples.xy
+        ),
         "control_used": [(u["id"], u["kind"]) for u in ctl.get("used", [])],
         "control_unused": ctl.get("unused", {}),
         "ingest_stops": cert["ingest"].get("stops", {}),

@@ -278,3 +278,22 @@ def test_default_scenario_checkpoint_bias_with_four_corner_control():
     assert abs(with_ctl["checkpoint_bias_m"]) < 0.10
     assert with_ctl["checkpoint_rmse_m"] <= 0.35
     assert with_ctl["control"]["n_used"] == 4
+
+
+@pytest.mark.slow
+def test_glacimap_run_with_four_corner_stops():
+    """The same through ``glacimap run`` (field files -> process, realistic prior.tif):
+    ``[control] n_targets = 4`` (mode "stops") carries the stops in rover/stops.csv, all 4
+    points are used as stops and the checkpoint bias drops below 0.10 m (measured +0.022 m;
+    0.465 m without control). The RMSE stays above the issue's 0.35 m on this route
+    (measured 0.368 m): the map between swaths leans on the noisy 75 m prior
+    (docs/ground-control.md, "Through glacimap run")."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.ground_control import run_process_case
+
+    row = run_process_case("stops4", 0)
+    assert abs(row["checkpoint_bias_m"]) < 0.10
+    assert row["checkpoint_rmse_m"] < 0.42
+    assert sorted(row["control_used"]) == [(f"GCP{i}", "stop") for i in (1, 2, 3, 4)]
+    assert row["ingest_stops"]["keyframes"] == 4
+    assert row["shared_z_std_m"] < 0.15
