@@ -18,6 +18,16 @@ Cases
     of every observation against its track's surface point (the renderer's ray cast under the
     track's last, nearest view: :func:`factorgraph.vision.track_truth`; median, p95, share
     > 4 px), and ms per frame (render; front-end).
+``headings``
+    Front-end yield heading east, north, south and west (20 keyframes 2 m apart from the
+    site centre, sunny snow, SIFT) with ``max_features`` 2000 and 4000.
+``scaleD`` (e.g. ``scale1.3``)
+    The default survey with ideal tracks at D texture points per m^2 (1.3: ~50,000
+    landmarks): wall and CPU time of localize (online pass, refinement, retry, marginals),
+    peak RSS before / after the online pass, selection.
+``gateN`` (e.g. ``gate4``)
+    ``chain_sunny``'s frames (re-rendered when absent) tracked again with the current
+    front-end, localizer gate N px.
 ``chain_sunny``
     The default scenario (embedded TOML: 600 m site, 4-swath lawnmower, keyframes every 2 s,
     GPS 0.5 Hz, seed 0) with the vision camera: ideal tracks vs rendered sunny-snow images
@@ -111,6 +121,41 @@ def case_frontend(n_keyframes: int, seed: int) -> dict[str, Any]:
                 rows.append(row)
                 print(name, det, clahe, {k: row[k] for k in list(row)[4:13]}, flush=True)
     return {"rows": rows, "keyframes": len(log.t), "seed": seed}
+
+
+def case_headings(n_keyframes: int, seed: int) -> dict[str, Any]:
+    """Front-end yield by heading: ``n_keyframes`` keyframes 2 m apart from the site centre
+    heading east, north, south and west (sunny snow, SIFT), with ``max_features`` 2000 (the
+    old default) and 4000 (the default)."""
+    from factorgraph import SensorSuite, simulate_traverse
+    from factorgraph.vision import (
+        SCENES,
+        TrackParams,
+        render_frames,
+        track_features,
+        track_truth,
+        vision_sensors,
+    )
+    from terrain.synthetic import default_site
+
+    dem = default_site(2.0)
+    x0, y0 = dem.x.values[150], dem.y.values[150]
+    sensors = vision_sensors(SensorSuite(keyframe_dt_s=2.0))
+    rows = []
+    for name, d in (("east", (1, 0)), ("north", (0, 1)), ("south", (0, -1)), ("west", (-1, 0))):
+        end = [x0 + 2.0 * n_keyframes * d[0] + 0.01, y0 + 2.0 * n_keyframes * d[1] + 0.01]
+        log = simulate_traverse(dem, np.array([[x0, y0], end]), sensors, seed=seed)
+        ren, it = render_frames(log, dem, SCENES["sunny_snow"], seed=seed)
+        frames = list(it)
+        for max_features in (2000, 4000):
+            params = TrackParams(max_features=max_features)
+            tr = track_features(frames, sensors.camera, params, log.odometry)
+            _, err = track_truth(ren, tr, ren.poses)
+            row = {"heading": name, "max_features": max_features}
+            row.update(_track_stats(tr, err, len(frames)))
+            rows.append(row)
+            print(name, max_features, {k: row[k] for k in list(row)[2:10]}, flush=True)
+    return {"rows": rows, "keyframes": n_keyframes, "seed": seed}
 
 
 def _map_metrics(sel, truth, scenario) -> dict[str, float]:
@@ -369,9 +414,9 @@ def case_scale(density: float, seed: int, swaths: int = 4) -> dict[str, Any]:
             t_online[0] = time.perf_counter()
             rss.mark()
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     loc = localize(log, LocalizeParams(**scenario["localize"]), progress=progress)
-    loc_s = time.perf_counter() - t0
+    loc_s, loc_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     after_s = time.perf_counter() - t_online[0]
     rss.mark()
     t1 = time.perf_counter()
@@ -396,6 +441,7 @@ def case_scale(density: float, seed: int, swaths: int = 4) -> dict[str, Any]:
         "landmark_in_2sigma": float(np.mean(nees < chi2.ppf(0.9545, 3))),
         "simulate_s": sim_s,
         "localize_s": loc_s,
+        "localize_cpu_s": loc_cpu_s,  # CPU time of the process (all threads): load-independent
         "online_s": float(step.sum()),
         "online_step_p50_s": float(np.median(step)),
         "online_step_max_s": float(step.max()),
@@ -437,6 +483,7 @@ SCALE_COLS = [
     ("landmarks_in_graph", "in graph", "d"),
     ("observations", "obs", "d"),
     ("localize_s", "localize s", ".0f"),
+    ("localize_cpu_s", "CPU s", ".0f"),
     ("online_s", "online s", ".0f"),
     ("refine_s", "refine s", ".0f"),
     ("retry_s", "retry s", ".0f"),
@@ -478,6 +525,18 @@ def main() -> None:
         elif case.startswith("gate"):  # e.g. gate8: chain_sunny with an 8 px gate
             res = in_subprocess(case_gate, float(case[4:]))
             cols = CHAIN_COLS
+        elif case == "headings":
+            res = in_subprocess(case_headings, 20, args.seed)
+            cols = [
+                ("heading", "heading", ""),
+                ("max_features", "max feat", "d"),
+                ("features_per_frame", "feat/fr", ".0f"),
+                ("inliers_per_frame", "inl/fr", ".0f"),
+                ("views_per_keyframe", "views/kf", ".1f"),
+                ("err_median_px", "err med", ".2f"),
+                ("err_gt4_frac", ">4px", ".3f"),
+                ("track_ms", "track ms", ".0f"),
+            ]
         elif case == "frontend":
             res = in_subprocess(case_frontend, args.keyframes, args.seed)
             cols = [
