@@ -110,7 +110,8 @@ def retry_failed_tracks(
     report : dict
         ``retry_tried``, ``retry_recovered``, ``retry_still_failed`` (by reason),
         ``retry_iterations``, ``retry_error_start`` / ``retry_error_final`` and
-        ``retry_seconds``.
+        ``retry_seconds``; when a landmark was added also ``error_final`` (the error of the
+        returned graph at the returned estimate, replacing the refinement's).
     """
     import gtsam
 
@@ -165,7 +166,8 @@ def retry_failed_tracks(
         new_values, report["retry_iterations"], hist = levenberg_marquardt(
             new_graph, new_values, params.refine_max_iterations, params.refine_rtol
         )
-        report["retry_error_final"] = hist[-1]
+        # the final graph now holds the recovered landmarks: its error is the final one
+        report["retry_error_final"] = report["error_final"] = hist[-1]
         graph, estimate = new_graph, new_values
     report["retry_seconds"] = time.perf_counter() - t0
     return graph, estimate, report
