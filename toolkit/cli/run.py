@@ -22,7 +22,7 @@ def run_command(
         int | None,
         typer.Option(
             "--epoch",
-            help="Override [change] epoch: 2 = the site after the scenario's known change, "
+            help="Override the scenario's change.epoch: 2 = the site after its known change, "
             "surveyed anew (docs/change.md).",
         ),
     ] = None,

@@ -129,7 +129,7 @@ def simulate_command(
     seed: Annotated[int | None, typer.Option(help="Override the scenario's seed.")] = None,
     epoch: Annotated[
         int | None,
-        typer.Option(help="Override [change] epoch: 2 = the site after the known change."),
+        typer.Option(help="Override the scenario's change.epoch: 2 = the site after its change."),
     ] = None,
     camera: Annotated[
         str,
