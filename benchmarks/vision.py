@@ -199,6 +199,11 @@ def _chain_row(name, log, truth, scenario) -> dict[str, Any]:
     s = localization_summary(loc, sel)
     e = loc.landmark_xyz - loc.true_landmarks()
     nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])
+    # decomposition (docs/vision.md, "Landmark NEES"): the shared offset (the mean keyframe
+    # error, one 3-dof draw per run) and the relative part, each against its covariance
+    delta = (loc.keyframe_xyz - log.truth["xyz"]).mean(0)
+    er = e - delta
+    rel = np.linalg.solve(loc.landmark_cov_relative, er[..., None])[..., 0]
     in_graph = set(loc.landmark_id.tolist())
     per_k = np.bincount(log.obs_k[np.isin(log.obs_id, list(in_graph))], minlength=log.n_keyframes)
     row = {
@@ -210,6 +215,9 @@ def _chain_row(name, log, truth, scenario) -> dict[str, Any]:
         "graph_landmarks_per_keyframe_p10": float(np.percentile(per_k, 10)),
         "landmark_nees": float(nees.mean()),
         "landmark_in_2sigma": float(np.mean(nees < chi2.ppf(0.9545, 3))),
+        "shared_offset_chi2": float(delta @ np.linalg.solve(loc.shared_offset_cov, delta)),
+        "relative_nees": float(np.einsum("ni,ni->n", er, rel).mean()),
+        "retry_recovered": int(loc.refine.get("retry_recovered", 0)),
         "landmark_rmse_3d_m": float(np.sqrt((e**2).sum(1).mean())),
         "horizontal_rmse_m": s["horizontal_rmse_m"],
         "vertical_rmse_m": s["vertical_rmse_m"],
@@ -246,7 +254,9 @@ def _wrong_matches(tracks, frac: float, rng):
     return dataclasses.replace(tracks, uv=uv), swapped
 
 
-def case_chain(scene: str, swaths: int, clahe_both: bool, bounds=None) -> dict[str, Any]:
+def case_chain(
+    scene: str, swaths: int, clahe_both: bool, bounds=None, seed: int = 0
+) -> dict[str, Any]:
     from factorgraph import SensorSuite
     from factorgraph.vision import (
         SCENES,
@@ -260,7 +270,7 @@ def case_chain(scene: str, swaths: int, clahe_both: bool, bounds=None) -> dict[s
     from toolkit.config import load_scenario
     from toolkit.pipeline import make_plan, make_truth
 
-    over: dict[str, Any] = {"plan": {"n_swaths": swaths}}
+    over: dict[str, Any] = {"plan": {"n_swaths": swaths}, "seed": seed}
     if bounds is not None:  # a part of the default site (plan and map inside it)
         over["site"] = {"bounds": [float(v) for v in bounds]}
     scenario = load_scenario(None, over)
@@ -270,7 +280,8 @@ def case_chain(scene: str, swaths: int, clahe_both: bool, bounds=None) -> dict[s
     seed = int(scenario["seed"])
     t0 = time.perf_counter()
     params = TrackParams(clahe=False)
-    frames_dir = Path("out/bench_vision_frames") / f"{scene}_{swaths}"
+    suffix = f"_s{seed}" if seed else ""
+    frames_dir = Path("out/bench_vision_frames") / f"{scene}_{swaths}{suffix}"
     run = simulate_images(truth, plan, sensors, seed, SCENES[scene], params, frames_dir)
     chain_s = time.perf_counter() - t0
     rows = [_chain_row("ideal tracks", run.ideal, truth, scenario)]
@@ -557,7 +568,11 @@ def main() -> None:
             scene = "overcast_snow" if case == "chain_overcast" else "sunny_snow"
             swaths = 4 if case == "chain_sunny" else args.overcast_swaths
             bounds = None if case == "chain_sunny" else args.overcast_bounds
-            res = in_subprocess(case_chain, scene, swaths, case == "chain_overcast", bounds)
+            res = in_subprocess(
+                case_chain, scene, swaths, case == "chain_overcast", bounds, args.seed
+            )
+            if args.seed:  # other seeds: their own entry in the results
+                case = f"{case}_seed{args.seed}"
             cols = CHAIN_COLS
         print(table(res["rows"], cols), flush=True)
         results[case] = res
