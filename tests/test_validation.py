@@ -242,8 +242,10 @@ def test_map_check_sees_a_too_small_sigma_that_noise_hides():
     p = cv.pooled
     assert abs(p["coverage_95"] - 0.91) <= 0.03  # the measurement-level view
     assert p["variance_ratio"] == pytest.approx(9.0, rel=0.2)
-    assert p["map_coverage_95"] == pytest.approx(0.486, abs=0.05)
-    assert p["map_coverage_68"] == pytest.approx(0.261, abs=0.04)
+    # the deconvolution is loose when noise is 96 % of the residual variance: 0.08 here
+    assert p["map_coverage_95"] == pytest.approx(0.486, abs=0.08)
+    assert p["map_coverage_68"] == pytest.approx(0.261, abs=0.08)
+    assert p["map_coverage_95_interval"][1] < 0.8  # far below nominal, beyond chance
     assert p["noise_share"] == pytest.approx(0.25 / 0.26, abs=1e-9)
     assert any("95 % map coverage" in v and "too small" in v for v in cv.verdict())
 
