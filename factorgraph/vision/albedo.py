@@ -104,15 +104,24 @@ def sample_pyramid(
     frac = (lod - l0).astype(np.float32)
     shape = (x.size,) + levels[0].shape[2:]
     out = np.empty(shape, np.float32)
-    for lev in np.unique(l0):
-        m = l0 == lev
+    # group the points by level once (a stable sort), then contiguous slices per level: one
+    # pass instead of a full-length mask per level (same values, point for point)
+    order = np.argsort(l0, kind="stable")
+    xo, yo, fo = x[order], y[order], frac[order]
+    ends = np.cumsum(np.bincount(l0, minlength=len(levels)))
+    start = 0
+    for lev, end in enumerate(ends):
+        if end == start:
+            continue
+        sl = slice(start, end)
         vals = []
         for j in (lev, lev + 1):
             s = 0.5**j
-            xs, ys = (x[m] + 0.5) * s - 0.5, (y[m] + 0.5) * s - 0.5
+            xs, ys = (xo[sl] + 0.5) * s - 0.5, (yo[sl] + 0.5) * s - 0.5
             vals.append(_bilinear(levels[j], xs, ys, periodic))
-        f = frac[m] if out.ndim == 1 else frac[m][:, None]
-        out[m] = vals[0] * (1 - f) + vals[1] * f
+        f = fo[sl] if out.ndim == 1 else fo[sl][:, None]
+        out[order[sl]] = vals[0] * (1 - f) + vals[1] * f
+        start = end
     return out
 
 
