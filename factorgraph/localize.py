@@ -167,9 +167,10 @@ class _Tracks:
     dropped: Counter = field(default_factory=Counter)
     first_k: dict[int, int] = field(default_factory=dict)
     init_distance: dict[int, float] = field(default_factory=dict)
-    # tracks with >= min_views views that failed the gates online: views and reason
+    # tracks with >= min_views views that failed the gates online: views and reasons (a
+    # simulated landmark seen again on a later swath fails or succeeds once per segment)
     failed: dict[int, list[tuple[int, np.ndarray]]] = field(default_factory=dict)
-    failed_reason: dict[int, str] = field(default_factory=dict)
+    failed_reason: dict[int, list[str]] = field(default_factory=dict)
 
     def drop(self, lid: int) -> None:
         """Count pending track ``lid`` as never initialised; keep it for a retry when it
@@ -177,7 +178,8 @@ class _Tracks:
         why = self.last_try.pop(lid, "too_few_views")
         self.dropped[why] += 1
         if why != "too_few_views":
-            self.failed[lid], self.failed_reason[lid] = self.pending[lid], why
+            self.failed.setdefault(lid, []).extend(self.pending[lid])
+            self.failed_reason.setdefault(lid, []).append(why)
         del self.pending[lid]
 
 

@@ -95,8 +95,10 @@ def retry_failed_tracks(
     estimate : gtsam.Values
         The refined estimate (poses ``x``, landmarks ``l``, ...).
     tracks : factorgraph.localize._Tracks
-        Its ``failed`` tracks (id -> views) are tried; a recovered track leaves ``failed``,
-        its online reason count in ``dropped`` is lowered and it joins ``active``.
+        Its ``failed`` tracks (id -> views) are tried, except those already in the graph
+        (``active``, from another segment of the same landmark) or ``banned``; a recovered
+        track leaves ``failed``, its online reason counts in ``dropped`` (one per failed
+        segment) are lowered and it joins ``active``.
     camera, bTc, K, params
         As :func:`triangulate_track`; ``params.refine_max_iterations`` and
         ``params.refine_rtol`` bound the Levenberg-Marquardt pass.
@@ -109,6 +111,7 @@ def retry_failed_tracks(
         With the recovered landmarks; ``estimate`` re-optimised when any was added.
     report : dict
         ``retry_tried``, ``retry_recovered``, ``retry_still_failed`` (by reason),
+        ``retry_skipped_in_graph``,
         ``retry_iterations``, ``retry_error_start`` / ``retry_error_final`` and
         ``retry_seconds``; when a landmark was added also ``error_final`` (the error of the
         returned graph at the returned estimate, replacing the refinement's).
@@ -133,8 +136,12 @@ def retry_failed_tracks(
     still: dict[str, int] = {}
     new_graph = gtsam.NonlinearFactorGraph(graph)
     new_values = gtsam.Values(estimate)
-    recovered = 0
+    recovered = in_graph = 0
     for lid, views in sorted(tracks.failed.items()):
+        if lid in tracks.active or lid in tracks.banned:  # initialised (or banned) from
+            in_graph += 1  # another segment of the same landmark: leave it as it is
+            continue
+        views = sorted(views, key=lambda v: v[0])
         pt, why = triangulate_track(views, _Poses(), camera, bTc, K, params)
         if pt is None:
             still[why] = still.get(why, 0) + 1
@@ -148,15 +155,15 @@ def retry_failed_tracks(
         tracks.first_k[lid] = views[0][0]
         last = pose(views[-1][0]).translation()
         tracks.init_distance[lid] = float(np.linalg.norm(pt - last))
-        online_reason = tracks.failed_reason.pop(lid)
-        tracks.dropped[online_reason] -= 1
-        if tracks.dropped[online_reason] == 0:
-            del tracks.dropped[online_reason]
-        recovered += 1
-    for lid in [lid for lid in tracks.failed if lid in tracks.active]:
+        for online_reason in tracks.failed_reason.pop(lid):
+            tracks.dropped[online_reason] -= 1
+            if tracks.dropped[online_reason] == 0:
+                del tracks.dropped[online_reason]
         del tracks.failed[lid]
+        recovered += 1
     report: dict[str, Any] = {
         "retry_tried": recovered + sum(still.values()),
+        "retry_skipped_in_graph": in_graph,
         "retry_recovered": recovered,
         "retry_still_failed": dict(sorted(still.items())),
         "retry_iterations": 0,

@@ -48,10 +48,10 @@ def test_retry_recovers_a_consistent_track_and_keeps_counting_a_bad_one():
     good_point = np.array([12.0, 1.0, 0.0])  # 12 m ahead on the ground, 1 m left
     tracks = _Tracks()
     tracks.failed[5] = _views(good_point, poses, K, bTc)
-    tracks.failed_reason[5] = "triangulation_failed"
+    tracks.failed_reason[5] = ["triangulation_failed"]
     # a wrong association: the middle view 30 px off (no point explains all three views)
     bad = _views(np.array([10.0, -1.0, 0.0]), poses, K, bTc, {0: 0, 1: np.array([30.0, 0]), 2: 0})
-    tracks.failed[9], tracks.failed_reason[9] = bad, "reprojection_gate"
+    tracks.failed[9], tracks.failed_reason[9] = bad, ["reprojection_gate"]
     tracks.dropped = Counter({"triangulation_failed": 1, "reprojection_gate": 1})
     n_before = graph.size()
     g2, est, rep = retry_failed_tracks(graph, values, tracks, camera, bTc, K, noise, params)
@@ -115,3 +115,24 @@ def test_localize_counts_every_track_once_with_and_without_retry():
     ) - out[False].dropped.get("degenerate_in_graph", 0) - out[False].dropped.get(
         "depth_after_refine", 0
     )
+
+
+def test_landmark_seen_in_two_segments():
+    """A simulated landmark can be seen on two swaths: a track that failed in both segments
+    is tried once with all its views and leaves both counts; one already in the graph from
+    another segment is skipped (its failed segment stays counted)."""
+    camera, K, bTc, graph, values, poses, noise = _setup()
+    params = LocalizeParams()
+    p = np.array([12.0, 1.0, 0.0])
+    v = _views(p, poses, K, bTc)
+    tracks = _Tracks()
+    tracks.failed[3] = list(v)
+    tracks.failed_reason[3] = ["triangulation_failed", "reprojection_gate"]
+    tracks.failed[4], tracks.failed_reason[4] = list(v), ["triangulation_failed"]
+    tracks.active.add(4)  # initialised online from another segment
+    tracks.dropped = Counter({"triangulation_failed": 2, "reprojection_gate": 1})
+    _, est, rep = retry_failed_tracks(graph, values, tracks, camera, bTc, K, noise, params)
+    assert rep["retry_recovered"] == 1 and rep["retry_skipped_in_graph"] == 1
+    assert tracks.dropped == Counter({"triangulation_failed": 1})
+    assert 3 not in tracks.failed and 4 in tracks.failed
+    assert not est.exists(gtsam.symbol_shorthand.L(4))
