@@ -61,7 +61,7 @@ from benchmarks._harness import in_subprocess, table, write_json  # noqa: E402
 
 CASES = ("none", "stops4", "stops2", "stops8", "targets4")
 PROCESS_CASES = (
-    *("none", "stops4", "targets4", "both4", "rtk", "rtk_stops4"),
+    *("none", "stops4", "targets4", "both4", "stops8", "rtk", "rtk_stops4"),
     *("stops4_prior0", "rtk_prior0"),  # diagnostics: [prior] noise_sd_m = 0
     "rtk_swaths8",  # diagnostic: [plan] n_swaths = 8 (swaths 75 m apart, not 150 m)
 )
@@ -199,6 +199,8 @@ def process_overrides(case: str, seed: int) -> dict[str, Any]:
     mode = {"stops4": "stops", "targets4": "targets", "both4": "both", "rtk_stops4": "stops"}
     if case in mode:
         over["control"] = {"n_targets": 4, "mode": mode[case]}
+    if case == "stops8":  # a stop at every turn of the lawnmower (its 8 waypoints)
+        over["control"] = {"n_targets": 8, "mode": "stops"}
     if case.startswith("rtk"):
         over["sensors"] = {"gps": dict(RTK_GPS)}
     return over

@@ -188,3 +188,39 @@ def test_glacimap_run_stops_reach_the_graph_and_the_certificate(tmp_path):
     assert "control" not in pc["localization"] and pc["inputs"]["control"] is None
     assert any("stops were not used" in w for w in pc["warnings"])
     assert pc["localization"]["shared_offset_std_m"][2] > 0.3  # consumer GPS, no control
+
+
+def _scenario(n: int, mode: str) -> dict:
+    return {"seed": 3, "control": {"n_targets": n, "mode": mode, "sigma_m": 0.02}}
+
+
+def test_simulated_control_modes(dem, stopped):
+    """``[control]`` of a simulated survey: 4 corner stops, 4 targets, both (8 points), or a
+    stop at every waypoint of the plan (``n_targets = 8``; LEGS has 6: all 6)."""
+    from types import SimpleNamespace
+
+    from factorgraph.control_sim import nearest_keyframes
+    from toolkit.field_survey import simulated_control
+
+    log = stopped[0]
+    assert simulated_control(_scenario(0, "stops"), dem, log) == (log, None)
+    slog, ctrl = simulated_control(_scenario(4, "stops"), dem, log)
+    corners = path_corners(log)
+    assert ctrl.ids.tolist() == ["GCP1", "GCP2", "GCP3", "GCP4"] and (ctrl.target_id < 0).all()
+    assert slog.control_id[corners].tolist() == ctrl.ids.tolist()
+    tlog, tctrl = simulated_control(_scenario(4, "targets"), dem, log)
+    assert tctrl.ids.tolist() == ["T1", "T2", "T3", "T4"] and tlog.control_id is None
+    blog, bctrl = simulated_control(_scenario(4, "both"), dem, log)
+    assert bctrl.n == 8 and (bctrl.target_id >= 0).sum() == 4
+    assert (blog.control_id != "").sum() == 4 and blog.obs_id.size == tlog.obs_id.size
+    plan = SimpleNamespace(waypoints=LEGS)
+    elog, ectrl = simulated_control(_scenario(8, "stops"), dem, log, plan)
+    ks = nearest_keyframes(log, LEGS)
+    assert ectrl.n == 6 and elog.control_id[ks].tolist() == [f"GCP{i}" for i in range(1, 7)]
+    for n, mode, p, match in [
+        (8, "targets", plan, 'mode = "stops" with a plan'),
+        (8, "stops", None, 'mode = "stops" with a plan'),
+        (5, "stops", None, "0, 4 or 8"),
+    ]:
+        with pytest.raises(InputError, match=match):
+            simulated_control(_scenario(n, mode), dem, log, p)

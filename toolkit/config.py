@@ -77,7 +77,7 @@ noise_sd_m = 0.3               # simulation: its independent error per cell (m)
 gps_format = "nmea"            # nmea | gpx | rtklib
 
 [control]                      # simulation: ground control at the survey's 4 corners
-n_targets = 0                  # control points: 0, or 4 near the survey's corners
+n_targets = 0                  # control points: 0, 4 at the corners, 8 stops at every turn
 mode = "stops"                 # "stops" (rover stands on them), "targets" (camera) or "both"
 sigma_m = 0.02                 # their survey's 1-sigma (m)
 

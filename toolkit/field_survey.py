@@ -64,9 +64,13 @@ def simulated_prior(truth, resolution_m: float, offset_m: float, noise_sd_m: flo
     return out
 
 
-def simulated_control(scenario: dict[str, Any], truth, log: MeasurementLog):
+def simulated_control(scenario: dict[str, Any], truth, log: MeasurementLog, plan=None):
     """The ``[control]`` ground control of a simulated survey: ``(log, ControlPoints)``, or
     ``(log, None)`` with ``n_targets = 0``.
+
+    ``n_targets = 8`` (``mode = "stops"`` only): the rover stops at every turn, the keyframes
+    nearest the ``plan``'s waypoints (a 4-swath lawnmower: both ends of every swath; a plan
+    with more waypoints: 8 spread evenly along them).
 
     ``mode = "stops"``: the rover stands on 4 points at the corners of its path (the
     keyframes nearest the corners of its bounding box, ``control_sim.path_corners``; the
@@ -77,17 +81,31 @@ def simulated_control(scenario: dict[str, Any], truth, log: MeasurementLog):
     seed): the traverse is untouched.
     """
     from factorgraph.control import ControlPoints
-    from factorgraph.control_sim import path_corners, simulate_control, simulate_targets
+    from factorgraph.control_sim import (
+        nearest_keyframes,
+        path_corners,
+        simulate_control,
+        simulate_targets,
+    )
     from terrain.errors import bad_input
 
     c, seed = scenario["control"], int(scenario["seed"])
     n, mode, sigma = int(c["n_targets"]), str(c.get("mode", "stops")), float(c["sigma_m"])
     if n == 0:
         return log, None
-    if n != 4:
-        raise bad_input("control.n_targets", c["n_targets"], "0 or 4", "4: the corners")
+    if n not in (4, 8):
+        raise bad_input("control.n_targets", c["n_targets"], "0, 4 or 8", "4: the corners")
     if mode not in ("stops", "targets", "both"):
         raise bad_input("control.mode", mode, "stops|targets|both", 'e.g. mode = "stops"')
+    if n == 8:
+        if mode != "stops" or plan is None:
+            raise bad_input("control.n_targets", 8, 'mode = "stops" with a plan', "or 4")
+        wp = np.asarray(plan.waypoints, float)
+        wp = wp[np.round(np.linspace(0, len(wp) - 1, min(8, len(wp)))).astype(int)]
+        ks = nearest_keyframes(log, wp)
+        if len(set(ks.tolist())) < len(ks):
+            raise bad_input("control.n_targets", 8, "8 distinct turns in the plan", "use 4")
+        return simulate_control(log, ks, sigma_m=sigma, centring_sigma_m=0.02, seed=seed)[:2]
     parts = []
     if mode in ("targets", "both"):
         log, targets, _ = simulate_targets(log, truth, sigma_m=sigma, seed=seed)
@@ -148,9 +166,10 @@ def _write_checkpoints(truth, bounds, n: int, rng, path: Path) -> Path:
 
 
 def write_field_survey(
-    scenario: dict[str, Any], truth, log: MeasurementLog, folder: str | Path
+    scenario: dict[str, Any], truth, log: MeasurementLog, folder: str | Path, plan=None
 ) -> FieldSurvey:
-    """Write the simulated survey ``log`` over ``truth`` as field files into ``folder``.
+    """Write the simulated survey ``log`` over ``truth`` as field files into ``folder``
+    (``plan``: the survey plan, for ``[control] n_targets = 8``, stops at every turn).
 
     The draws (prior error, checkpoints) come from their own stream of the scenario's seed
     (child 3 of its ``SeedSequence``), so they do not change the traverse.
@@ -172,7 +191,7 @@ def write_field_survey(
         folder / "checkpoints.csv",
     )
     control_path = None
-    log, ctrl = simulated_control(scenario, truth, log)
+    log, ctrl = simulated_control(scenario, truth, log, plan)
     if ctrl is not None:
         control_path = ctrl.write_csv(folder / "control.csv")
     else:

@@ -186,7 +186,7 @@ def run_scenario(
 
     def _simulate():
         log = simulate_log(scenario, truth, plan)
-        return write_field_survey(scenario, truth, log, out / "field")
+        return write_field_survey(scenario, truth, log, out / "field", plan=plan)
 
     fresh = not (out / "field").exists()
     survey = timed("simulate", _simulate)
