@@ -203,12 +203,16 @@ def _isam_params(params: LocalizeParams):
     return p
 
 
-def _drop_landmarks_at_cameras(graph, estimate, tracks: _Tracks, bTc, min_depth_m: float):
+def _drop_landmarks_at_cameras(
+    graph, estimate, tracks: _Tracks, bTc, min_depth_m: float, max_range_m: float = np.inf
+):
     """Remove the landmarks that the refinement left nearer than ``min_depth_m`` to (or
-    behind) a camera that sees them, with their factors and values; counted in
-    ``tracks.dropped["depth_after_refine"]``. A wrong association can pull a point onto a
-    camera centre, where its information is ~1e15 and the Schur complement of the marginals
-    loses positive definiteness (measured: 10 % swapped image tracks, 51 keyframes)."""
+    behind), or farther than ``max_range_m`` from, a camera that sees them, with their
+    factors and values; counted in ``tracks.dropped["depth_after_refine"]``. (Far: a wrong
+    association ran one landmark 30 km away; 10 % swapped image tracks, 51 keyframes.)
+    Near: a wrong association can pull a point onto a camera centre, where its information
+    is ~1e15 and the Schur complement of the marginals loses positive definiteness
+    (measured: 10 % swapped image tracks, 51 keyframes)."""
     import gtsam
 
     bad = set()
@@ -219,7 +223,8 @@ def _drop_landmarks_at_cameras(graph, estimate, tracks: _Tracks, bTc, min_depth_
             continue
         xk, lk = sorted(keys, key=lambda k: chr(k.chr()) == "l")
         wTc = estimate.atPose3(xk.key()).compose(bTc)
-        if wTc.transformTo(estimate.atPoint3(lk.key()))[2] < min_depth_m:
+        pc = wTc.transformTo(estimate.atPoint3(lk.key()))
+        if pc[2] < min_depth_m or np.linalg.norm(pc) > max_range_m:
             bad.add(int(lk.index()))
     if not bad:
         return graph
@@ -447,7 +452,9 @@ def localize(
             graph, estimate, retry = retry_failed_tracks(
                 graph, estimate, tracks, camera, bTc, K, pix_noise, params
             )
-    graph = _drop_landmarks_at_cameras(graph, estimate, tracks, bTc, params.min_depth_m)
+    graph = _drop_landmarks_at_cameras(  # the triangulation gate's range, 1.5 x the camera's
+        graph, estimate, tracks, bTc, params.min_depth_m, 1.5 * camera.range_max_m
+    )
     t0 = time.perf_counter()
     marg = landmark_marginals(
         graph, estimate, log.n_keyframes, sorted(tracks.active), bias_model, drift_model

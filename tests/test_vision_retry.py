@@ -136,3 +136,19 @@ def test_landmark_seen_in_two_segments():
     assert tracks.dropped == Counter({"triangulation_failed": 1})
     assert 3 not in tracks.failed and 4 in tracks.failed
     assert not est.exists(gtsam.symbol_shorthand.L(4))
+
+
+def test_recovered_landmarks_are_gated_again_at_the_optimum():
+    """_fail_gates_again flags a landmark that ran away (far beyond the range) or whose
+    views no longer agree with its point, and keeps a consistent one."""
+    from factorgraph.track_init import _fail_gates_again
+
+    camera, K, bTc, _, values, poses, _ = _setup()
+    L = gtsam.symbol_shorthand.L
+    p = np.array([12.0, 1.0, 0.0])
+    v = _views(p, poses, K, bTc)
+    values.insert(L(1), p)  # consistent
+    values.insert(L(2), np.array([1200.0, 100.0, 0.0]))  # ran away along the view
+    values.insert(L(3), p + [0.0, 0.5, 0.0])  # 0.5 m aside: tens of px off
+    bad = _fail_gates_again(values, {1: v, 2: v, 3: v}, camera, bTc, K, LocalizeParams())
+    assert bad == [2, 3]
