@@ -66,6 +66,7 @@ SPLINE_LIMIT_S = 600.0
 SPLINE_LIMIT_MB = 12_000.0
 SPLINE_COPIES = 6  # peak RSS of verde.Spline's fit ~ this many m x m float64 arrays
 TARGETS = {"rmse_ratio": 0.8, "cov95": (92.0, 98.0), "cov68": (62.0, 76.0)}
+HELDOUT_POINTS = 3.0  # held-out coverage within this many points of the truth's
 
 
 def parse_site(spec: str) -> dict[str, Any]:
@@ -163,6 +164,29 @@ def _metrics(pred, std, truth, samples, grid) -> dict[str, Any]:
     return out
 
 
+def _heldout(gp, samples, grid) -> dict[str, Any]:
+    """The user's sigma check without truth: terrain.cross_validate (5 folds, seed 0, blocks
+    matched to the grid's distances), timed apart from the method."""
+    from terrain import cross_validate
+
+    t = time.perf_counter()
+    cv = cross_validate(gp, samples, n_folds=5, seed=0, targets=grid)
+    p = cv.pooled
+    keys = ("coverage_95", "coverage_68", "map_coverage_95", "map_coverage_68")
+    out = {k: 100 * p[k] for k in keys if p.get(k) is not None}
+    for k in ("map_coverage_95_interval", "map_coverage_68_interval"):
+        out[k] = [100 * v for v in p[k]] if p.get(k) else None
+    out.update(
+        variance_ratio=p.get("variance_ratio"),
+        noise_share=p.get("noise_share"),
+        block_m=cv.block_size,
+        rule=cv.block_size_rule,
+        verdict=cv.verdict(),
+        seconds=time.perf_counter() - t,
+    )
+    return out
+
+
 def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) -> dict:
     """One method on one site and size; runs in a child process."""
     import _peers
@@ -196,6 +220,7 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
             "gp_method": _jsonable(getattr(gp, "method_", None)),
             "lml": _jsonable(getattr(gp, "log_marginal_likelihood_value_", None)),
         }
+        info["heldout"] = _heldout(gp, samples, grid)
     elif method == "rbf_tps64":
         pred, std, info = _peers.rbf_tps(samples, q, neighbors=64)
     elif method == "verde_knn":
@@ -298,6 +323,22 @@ def _ratios(rows: list[dict]) -> None:
                     r[f"time_over_{key}"] = r["method_s"] / ref["method_s"]
 
 
+def _heldout_gap(r: dict) -> dict[str, Any]:
+    """Held-out map coverage (noise removed) against the truth's, points; target: within 3."""
+    h = (r.get("info") or {}).get("heldout") or {}
+    if h.get("map_coverage_95") is None:
+        return {}
+    d95 = h["map_coverage_95"] - r["cov95"]
+    d68 = h["map_coverage_68"] - r["cov68"]
+    return {
+        "cv95": h["map_coverage_95"],
+        "cv68": h["map_coverage_68"],
+        "d95": d95,
+        "d68": d68,
+        "cv_ok": "PASS" if max(abs(d95), abs(d68)) <= HELDOUT_POINTS else "MISS",
+    }
+
+
 def _verdicts(rows: list[dict]) -> list[dict]:
     """The targets for the glacimap rows: PASS / MISS (— when not measured)."""
     out = []
@@ -326,6 +367,7 @@ def _verdicts(rows: list[dict]) -> list[dict]:
                 "cov68_ok": pf(lo68 <= r["cov68"] <= hi68),
                 "rmse_over_rbf": r.get("rmse_over_rbf"),
                 "rbf_ok": pf(None if peer is None else r["rmse_hull"] <= peer),
+                **_heldout_gap(r),
             }
         )
     return out
@@ -400,7 +442,9 @@ def report(rows: list[dict]) -> list[dict]:
         print(
             f"\nTargets: RMSE <= {TARGETS['rmse_ratio']} x Delaunay (on its hull), 95 % coverage"
             f" {TARGETS['cov95'][0]:.0f}-{TARGETS['cov95'][1]:.0f}, 68 % coverage"
-            f" {TARGETS['cov68'][0]:.0f}-{TARGETS['cov68'][1]:.0f}, RMSE <= RBF's (on the hull)"
+            f" {TARGETS['cov68'][0]:.0f}-{TARGETS['cov68'][1]:.0f}, RMSE <= RBF's (on the hull);"
+            " held-out map coverage (cross_validate, noise removed) within"
+            f" {HELDOUT_POINTS:g} points of the truth's (d = CV - truth)"
         )
         print(
             table(
@@ -417,6 +461,11 @@ def report(rows: list[dict]) -> list[dict]:
                     ("cov68_ok", "62-76", ""),
                     ("rmse_over_rbf", "/RBF", ".3f"),
                     ("rbf_ok", "<=RBF", ""),
+                    ("cv95", "CV 95%", ".1f"),
+                    ("cv68", "CV 68%", ".1f"),
+                    ("d95", "d95", "+.1f"),
+                    ("d68", "d68", "+.1f"),
+                    ("cv_ok", "|d|<=3", ""),
                 ],
             )
         )
