@@ -284,9 +284,10 @@ def test_default_scenario_checkpoint_bias_with_four_corner_control():
 def test_glacimap_run_with_four_corner_stops():
     """The same through ``glacimap run`` (field files -> process, realistic prior.tif):
     ``[control] n_targets = 4`` (mode "stops") carries the stops in rover/stops.csv, all 4
-    points are used as stops and the checkpoint bias drops below 0.10 m (measured +0.022 m;
-    0.465 m without control). The RMSE stays above the issue's 0.35 m on this route
-    (measured 0.368 m): the map between swaths leans on the noisy 75 m prior
+    points are used as stops and the checkpoint bias drops below 0.10 m (measured +0.022 m
+    at 18ab84a, +0.012 m at d367bda; about 0.45 m without control). The RMSE stays just
+    above the issue's 0.35 m on this route (0.368 m, 0.353 m): the map between swaths leans
+    on the noisy 75 m prior
     (docs/ground-control.md, "Through glacimap run")."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from benchmarks.ground_control import run_process_case
