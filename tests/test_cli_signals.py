@@ -25,7 +25,15 @@ def _start(args: list[str], cwd: Path) -> subprocess.Popen:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
+        # A shell without job control starts background jobs with SIGINT ignored, and Python
+        # keeps an inherited SIG_IGN: restore the default so the CLI's own handling is tested
+        # however pytest was launched (e.g. `make test &`).
+        preexec_fn=_default_sigint,
     )
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _wait_until_running(proc: subprocess.Popen, out: Path, timeout: float = 120.0) -> None:
