@@ -59,3 +59,19 @@ def write_json(path: Path, payload: dict[str, Any]) -> None:
     tmp.write_text(json.dumps(payload, indent=2, default=float))
     tmp.replace(path)
     print(f"wrote {path}")
+
+
+def paper_prior_map(sel: Any, truth: Any, scenario: dict[str, Any]) -> Any:
+    """The pipeline's GP map (``toolkit.stages.reconstruct_selection``) of a selection, on the
+    scenario's site grid, with the paper's 8 x 8 block-averaged prior of ``truth`` and no
+    held-out check: the ``terrain.TerrainGP`` product Dataset."""
+    from terrain import Grid, TriangulatedMean, coarse_dem
+    from toolkit.stages import reconstruct_selection
+
+    grid = Grid.from_bounds(
+        tuple(scenario["site"]["bounds"]),
+        float(scenario["reconstruct"]["resolution_m"]),
+        scenario["site"]["crs"],
+    )
+    mean = TriangulatedMean(coarse_dem(truth, cells=(8, 8)))
+    return reconstruct_selection(sel, grid, mean, scenario, int(scenario["seed"]), 0).product

@@ -237,7 +237,7 @@ def _chain_epoch(truth, plan, seed: int, grid):
     from toolkit.config import load_scenario
     from toolkit.field_survey import simulated_prior
     from toolkit.processing import prior_mean
-    from toolkit.stages import localize_stage, reconstruct_stage, select_stage
+    from toolkit.stages import localize_stage, reconstruct_selection, select_stage
 
     settings = load_scenario(overrides={"seed": seed})
     log = simulate_traverse(truth, plan, SensorSuite.from_dict(settings["sensors"]), seed=seed)
@@ -246,18 +246,7 @@ def _chain_epoch(truth, plan, seed: int, grid):
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(3,)))
     p = settings["prior"]
     prior = simulated_prior(truth, p["resolution_m"], p["offset_m"], p["noise_sd_m"], rng)
-    kept = sel.table["kept"]
-    rec = reconstruct_stage(
-        sel.samples,
-        grid,
-        prior_mean(prior, settings),
-        settings,
-        seed,
-        landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
-        landmark_rel_z_std=sel.table["z_std_m"][kept],
-        shared_z_std=float(sel.shared_offset_std_m[2]),
-        heldout_folds=0,
-    )
+    rec = reconstruct_selection(sel, grid, prior_mean(prior, settings), settings, seed, 0)
     offset = float(np.mean(loc.keyframe_xyz[:, 2] - log.truth["xyz"][:, 2]))
     return rec, offset, sel.counts
 

@@ -57,7 +57,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks._harness import in_subprocess, table, write_json  # noqa: E402
+from benchmarks._harness import (  # noqa: E402
+    in_subprocess,
+    paper_prior_map,
+    table,
+    write_json,
+)
 
 CASES = ("none", "stops4", "stops2", "stops8", "targets4")
 PROCESS_CASES = (
@@ -89,28 +94,12 @@ def _checkpoints(scenario: dict[str, Any], truth):
 
 def _map(scenario, truth, loc, sel) -> dict[str, Any]:
     """The pipeline's ``gp_satellite`` product and its certificate."""
-    from terrain import Grid, TriangulatedMean, coarse_dem, evaluate
+    from terrain import Grid, evaluate
     from toolkit.certify import certify
-    from toolkit.stages import reconstruct_stage
 
     seed = int(scenario["seed"])
-    grid = Grid.from_bounds(
-        tuple(scenario["site"]["bounds"]),
-        float(scenario["reconstruct"]["resolution_m"]),
-        scenario["site"]["crs"],
-    )
-    kept = sel.table["kept"]
-    product = reconstruct_stage(  # the pipeline's GP map with the paper's 8 x 8 prior
-        sel.samples,
-        grid,
-        TriangulatedMean(coarse_dem(truth, cells=(8, 8))),
-        scenario,
-        seed,
-        landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
-        landmark_rel_z_std=sel.table["z_std_m"][kept],
-        shared_z_std=float(sel.shared_offset_std_m[2]),
-        heldout_folds=0,
-    ).product
+    product = paper_prior_map(sel, truth, scenario)  # the pipeline's GP map, 8 x 8 prior
+    grid = Grid.from_dataarray(product)
     truth_on_grid = truth.interp(x=grid.x, y=grid.y, method="linear")
     m = evaluate(product["elevation"].values, truth_on_grid.values, product["elevation_std"].values)
     cert = certify(product, _checkpoints(scenario, truth), seed=seed, n_boot=200)

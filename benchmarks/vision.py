@@ -62,7 +62,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import in_subprocess, table, write_json  # noqa: E402
+from _harness import in_subprocess, paper_prior_map, table, write_json  # noqa: E402
 
 SCENE_NAMES = ("sunny_snow", "sunny_dirty_ice", "overcast_snow", "low_sun")
 DETECTORS = ("sift", "orb", "akaze", "klt")
@@ -160,27 +160,10 @@ def case_headings(n_keyframes: int, seed: int) -> dict[str, Any]:
 
 def _map_metrics(sel, truth, scenario) -> dict[str, float]:
     """The satellite-mean GP map of ``glacimap run`` (toolkit.pipeline) and its metrics."""
-    from terrain import Grid, TriangulatedMean, coarse_dem, evaluate
-    from toolkit.stages import reconstruct_stage
+    from terrain import Grid, evaluate
 
-    seed = int(scenario["seed"])
-    grid = Grid.from_bounds(
-        tuple(scenario["site"]["bounds"]),
-        float(scenario["reconstruct"]["resolution_m"]),
-        scenario["site"]["crs"],
-    )
-    kept = sel.table["kept"]
-    ds = reconstruct_stage(  # the pipeline's GP map with the paper's 8 x 8 prior
-        sel.samples,
-        grid,
-        TriangulatedMean(coarse_dem(truth, cells=(8, 8))),
-        scenario,
-        seed,
-        landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
-        landmark_rel_z_std=sel.table["z_std_m"][kept],
-        shared_z_std=float(sel.shared_offset_std_m[2]),
-        heldout_folds=0,
-    ).product
+    ds = paper_prior_map(sel, truth, scenario)  # the pipeline's GP map, 8 x 8 prior
+    grid = Grid.from_dataarray(ds)
     t = truth.interp(x=grid.x, y=grid.y, method="linear").values
     m = evaluate(ds["elevation"].values, t, ds["elevation_std"].values)
     return {"map_rmse_m": m["rmse"], "map_coverage_95": m["coverage_95"]}

@@ -25,7 +25,7 @@ from .control import ControlPoints, add_control_factors, control_report, plan_co
 from .factors import biased_gps_factor, drift_odometry_factor, gauss_markov_factor, gm_transition
 from .field.gate import gate_log
 from .log import MeasurementLog
-from .rebuild import rebuild_isam
+from .rebuild import rebuild_isam, without_keys
 from .result import LocalizationResult
 from .track_init import retry_failed_tracks
 from .track_init import triangulate_track as _triangulate
@@ -229,12 +229,7 @@ def _drop_landmarks_at_cameras(
     if not bad:
         return graph
     L = gtsam.symbol_shorthand.L
-    drop = {L(lid) for lid in bad}
-    kept = gtsam.NonlinearFactorGraph()
-    for i in range(graph.size()):
-        f = graph.at(i)
-        if f is not None and not drop.intersection(f.keys()):
-            kept.add(f)
+    kept = without_keys(graph, {L(lid) for lid in bad})
     for lid in bad:
         estimate.erase(L(lid))
         tracks.active.discard(lid)

@@ -4,7 +4,7 @@ landmark never ends a localization run."""
 
 from __future__ import annotations
 
-__all__ = ["rebuild_isam", "value_at"]
+__all__ = ["rebuild_isam", "value_at", "without_keys"]
 
 
 def value_at(values, key: int):
@@ -17,7 +17,7 @@ def value_at(values, key: int):
     return values.atPoint2(key) if ch == "d" else values.atPoint3(key)
 
 
-def _without(graph, bad: set[int]):
+def without_keys(graph, bad: set[int]):
     """Copy of ``graph`` without the factors touching any key in ``bad``."""
     import gtsam
 
@@ -66,7 +66,7 @@ def rebuild_isam(isam, isam_params, history, graph, values, new_lids, k, exc, ma
     bad = {L(lid) for lid in new_lids}
     message = str(exc)
     for _ in range(max_tries):
-        full = _without(full, bad)
+        full = without_keys(full, bad)
         for key in bad:
             if theta.exists(key):
                 theta.erase(key)

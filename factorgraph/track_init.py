@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from .rebuild import without_keys
+
 __all__ = ["retry_failed_tracks", "triangulate_track"]
 
 
@@ -227,11 +229,4 @@ def _without_landmarks(graph, lids: list[int]):
     """Copy of ``graph`` without the factors that touch landmarks ``lids``."""
     import gtsam
 
-    L = gtsam.symbol_shorthand.L
-    drop = {L(lid) for lid in lids}
-    out = gtsam.NonlinearFactorGraph()
-    for i in range(graph.size()):
-        f = graph.at(i)
-        if f is not None and not drop.intersection(f.keys()):
-            out.add(f)
-    return out
+    return without_keys(graph, {gtsam.symbol_shorthand.L(lid) for lid in lids})

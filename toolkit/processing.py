@@ -32,7 +32,7 @@ from .stages import (
     localization_summary,
     localize_stage,
     map_grid,
-    reconstruct_stage,
+    reconstruct_selection,
     select_stage,
 )
 
@@ -183,18 +183,8 @@ def process(
         grid = map_grid(
             bounds, float(settings["reconstruct"]["resolution_m"]), mlog.crs, sel.samples
         )
-        kept = sel.table["kept"]
-        rec = reconstruct_stage(
-            sel.samples,
-            grid,
-            mean,
-            settings,
-            seed,
-            landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
-            landmark_rel_z_std=sel.table["z_std_m"][kept],  # relative (shared removed), Eq 7
-            shared_z_std=float(sel.shared_offset_std_m[2]),
-            heldout_folds=int(settings["certify"]["heldout_folds"]),
-        )
+        folds = int(settings["certify"]["heldout_folds"])
+        rec = reconstruct_selection(sel, grid, mean, settings, seed, folds)
     with staged_folder(out) as tmp_out:
         from .products import write_products
 

@@ -32,6 +32,7 @@ __all__ = [
     "localization_summary",
     "localize_stage",
     "map_grid",
+    "reconstruct_selection",
     "reconstruct_stage",
     "select_stage",
 ]
@@ -171,6 +172,26 @@ def reconstruct_stage(
         "spatial block CV" if heldout is not None else f"skipped: {why}"
     )
     return Reconstruction(product=product, gp=gp, samples=samples, heldout=heldout)
+
+
+def reconstruct_selection(
+    sel: Any, grid: Grid, mean: Any, settings: dict[str, Any], seed: int, heldout_folds: int
+) -> Reconstruction:
+    """:func:`reconstruct_stage` on a :func:`select_stage` result: its samples, with the kept
+    landmarks' relative vertical 1-sigma (shared offset removed, Eq 7) for the along-track
+    term and the survey's shared vertical 1-sigma."""
+    kept = sel.table["kept"]
+    return reconstruct_stage(
+        sel.samples,
+        grid,
+        mean,
+        settings,
+        seed,
+        landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
+        landmark_rel_z_std=sel.table["z_std_m"][kept],
+        shared_z_std=float(sel.shared_offset_std_m[2]),
+        heldout_folds=heldout_folds,
+    )
 
 
 def certify_stage(
