@@ -238,6 +238,16 @@ def map_error_by_distance(product, truth, xy: np.ndarray) -> dict[str, dict[str,
     return out
 
 
+def realised_offsets(loc, sim_log, product, truth) -> dict[str, float]:
+    """The drawn map-wide vertical offset of one run, three ways (m): the mean vertical error
+    of the keyframes (exactly the quantity whose covariance the marginals state as the shared
+    offset, :mod:`factorgraph.marginals`) and the map's mean error over the whole site."""
+    true = sim_log.truth["xyz"] + np.r_[sim_log.origin - loc.log.origin, 0.0]
+    kf = float((loc.keyframe_xyz - true)[:, 2].mean())
+    err = product["elevation"].values - truth.interp(x=product.x, y=product.y).values
+    return {"keyframe_z_mean_m": kf, "map_mean_error_m": float(np.nanmean(err))}
+
+
 def run_process_case(case: str, seed: int) -> dict[str, Any]:
     """``glacimap run`` (field files -> ``process``) for one case; scores against the truth."""
     import tempfile
@@ -253,7 +263,12 @@ def run_process_case(case: str, seed: int) -> dict[str, Any]:
     kept_ids = sel.table["landmark_id"][sel.table["kept"]]
     all_lm, kept_lm = _landmark_errors(loc, sim), _landmark_errors(loc, sim, kept_ids)
     ctl = locs.get("control") or {}
+    product = res.objects["reconstruction"].product
+    by_dist = map_error_by_distance(product, res.objects["truth"], sel.samples.xy)
+    offsets = realised_offsets(loc, sim, product, res.objects["truth"])
     return {
+        **offsets,
+        "swath_mean_error_m": by_dist["0-5"]["mean_m"],
         "case": case,
         "seed": seed,
         "route": "process",
@@ -276,15 +291,88 @@ def run_process_case(case: str, seed: int) -> dict[str, Any]:
         "map_coverage95": metrics["gp_satellite"].get("coverage_95"),
         "delaunay_rmse_m": float(metrics["delaunay"]["rmse"]),
         "kernel": cert["reconstruction"]["kernel"],
-        "map_by_distance": map_error_by_distance(
-            res.objects["reconstruction"].product, res.objects["truth"], sel.samples.xy
-        ),
+        "map_by_distance": by_dist,
         "control_used": [(u["id"], u["kind"]) for u in ctl.get("used", [])],
         "control_unused": ctl.get("unused", {}),
         "ingest_stops": cert["ingest"].get("stops", {}),
         "gps_quality": cert["ingest"].get("gps_quality", {}),
         "timings_s": res.timings,
     }
+
+
+def _guarded(func, *args) -> dict[str, Any]:
+    """``func(*args)``, or a row naming the failure (a sweep over seeds goes on; counted)."""
+    try:
+        return func(*args)
+    except Exception as exc:  # reported in the row and in the calibration's n_failed
+        return {"case": args[0], "seed": args[1], "error": f"{type(exc).__name__}: {exc}"}
+
+
+def seed_list(tokens: list[str]) -> list[int]:
+    """``["0-3", "7"]`` -> ``[0, 1, 2, 3, 7]`` (inclusive ranges)."""
+    out: list[int] = []
+    for tok in tokens:
+        a, _, b = tok.partition("-")
+        out += list(range(int(a), int(b or a) + 1))
+    return out
+
+
+#: realised offsets scored against the stated shared vertical 1-sigma (same sign: map - truth)
+Z_SOURCES = (
+    ("keyframe_z_mean_m", "kf"),  # what the marginals' shared covariance describes exactly
+    ("map_mean_error_m", "map"),  # the map's mean error over the site
+    ("checkpoint_bias_m", "cp"),  # the certificate's bias (DEM - checkpoint), 400 points
+)
+
+
+def calibration(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per case, over seeds: z = offset / stated shared 1-sigma for each of :data:`Z_SOURCES`;
+    std of z (1 when the sigma is honest), RMS of z with its 90 % interval for a calibrated
+    sigma (chi-square with n degrees of freedom), the share with |z| < 1.96 (0.95)."""
+    from scipy.stats import chi2
+
+    out = []
+    for case in dict.fromkeys(r["case"] for r in rows):
+        ok = [r for r in rows if r["case"] == case and "error" not in r]
+        n = len(ok)
+        row: dict[str, Any] = {
+            "case": case,
+            "n": n,
+            "n_failed": sum(r["case"] == case for r in rows) - n,
+        }
+        if n == 0:
+            out.append(row)
+            continue
+        sig = np.array([r["shared_z_std_m"] for r in ok])
+        row["shared_z_std_median_m"] = float(np.median(sig))
+        lo, hi = np.sqrt(chi2.ppf([0.05, 0.95], n) / n)
+        row["rms_z_90_if_calibrated"] = [float(lo), float(hi)]
+        for key, tag in Z_SOURCES:
+            z = np.array([r[key] for r in ok]) / sig
+            row[f"z_{tag}"] = [round(float(v), 3) for v in z]
+            row[f"{tag}_z_mean"] = float(z.mean())
+            row[f"{tag}_z_std"] = float(z.std(ddof=1)) if n > 1 else None
+            row[f"{tag}_z_rms"] = float(np.sqrt(np.mean(z**2)))
+            row[f"{tag}_in_1.96"] = float(np.mean(np.abs(z) < 1.96))
+        out.append(row)
+    return out
+
+
+CALIBRATION_COLUMNS = [
+    ("case", "case", ""),
+    ("n", "seeds", "d"),
+    ("shared_z_std_median_m", "shared z σ", ".3f"),
+    *[
+        c
+        for _, t in Z_SOURCES
+        for c in (
+            (f"{t}_z_mean", f"{t} z mean", "+.2f"),
+            (f"{t}_z_std", f"{t} z std", ".2f"),
+            (f"{t}_z_rms", f"{t} z RMS", ".2f"),
+            (f"{t}_in_1.96", f"{t} |z|<1.96", ".2f"),
+        )
+    ],
+]
 
 
 COLUMNS = [
@@ -311,6 +399,8 @@ PROCESS_COLUMNS = [
     ("landmark_z_rmse_m", "lm z RMSE", ".3f"),
     ("selected_z_rmse_m", "sel z RMSE", ".3f"),
     ("landmark_z_nees", "lm z NEES", ".2f"),
+    ("keyframe_z_mean_m", "kf z mean", ".3f"),
+    ("map_mean_error_m", "map mean", ".3f"),
     ("shared_z_std_m", "shared z σ", ".3f"),
     ("keyframe_h_rmse_m", "kf h RMSE", ".3f"),
     ("checkpoint_bias_m", "cp bias", ".3f"),
@@ -321,38 +411,58 @@ PROCESS_COLUMNS = [
 ]
 
 
+def _save(path: Path, key: str, rows: list[dict[str, Any]], merge: bool, calib: bool) -> None:
+    """Write ``rows`` under ``key`` of the JSON at ``path`` (other keys kept; with ``merge``
+    the (case, seed) rows already there are replaced, the others kept)."""
+    import json
+
+    old = json.loads(path.read_text()) if path.is_file() else {}
+    old = {k: v for k, v in old.items() if k not in ("python", "machine", "cpu_count")}
+    if key in old and merge:
+        done = {(r["case"], r["seed"]) for r in rows}
+        rows = [r for r in old[key] if (r["case"], r["seed"]) not in done] + rows
+    extra = {"calibration": calibration(rows)} if calib else {}
+    write_json(path, {**old, "benchmark": "ground_control", key: rows, **extra})
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="+", default=None, choices=sorted({*CASES, *PROCESS_CASES}))
-    ap.add_argument("--seeds", nargs="+", type=int, default=[0])
+    ap.add_argument("--seeds", nargs="+", default=["0"], help="seeds and ranges: 0-11 20")
     ap.add_argument("--no-map", action="store_true", help="landmarks only (no GP, no certify)")
     ap.add_argument("--route", choices=("stages", "process"), default="stages")
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument(
+        "--calibration",
+        action="store_true",
+        help="(--route process) score each seed's realised offset against the stated shared "
+        "1-sigma; rows and the per-case table go to calibration_rows / calibration",
+    )
     args = ap.parse_args(argv)
+    if args.calibration and args.route != "process":
+        ap.error("--calibration runs on --route process (what glacimap run does)")
     known = CASES if args.route == "stages" else PROCESS_CASES
     cases = args.cases or list(known)
     if set(cases) - set(known):
         ap.error(f"--route {args.route} cases: {', '.join(known)}")
-    rows = []
+    rows: list[dict[str, Any]] = []
     cols = COLUMNS if args.route == "stages" else PROCESS_COLUMNS
-    for seed in args.seeds:
+    key = "rows" if args.route == "stages" else "process_rows"
+    key = "calibration_rows" if args.calibration else key
+    for seed in seed_list(args.seeds):
         for case in cases:
             if args.route == "stages":
                 rows.append(in_subprocess(run_case, case, seed, not args.no_map))
             else:
-                rows.append(in_subprocess(run_process_case, case, seed))
-            print(table(rows[-1:], cols), flush=True)
+                rows.append(in_subprocess(_guarded, run_process_case, case, seed))
+            print(table(rows[-1:], cols), rows[-1].get("error", ""), flush=True)
+            if args.out and args.route == "process":  # saved row by row: a long sweep
+                _save(args.out, key, rows, True, args.calibration)
     print(table(rows, cols))
-    if args.out:
-        import json
-
-        key = "rows" if args.route == "stages" else "process_rows"
-        old = json.loads(args.out.read_text()) if args.out.is_file() else {}
-        old = {k: v for k, v in old.items() if k not in ("python", "machine", "cpu_count")}
-        if key in old and args.route == "process":  # merge: replace the (case, seed) rows run
-            done = {(r["case"], r["seed"]) for r in rows}
-            rows = [r for r in old[key] if (r["case"], r["seed"]) not in done] + rows
-        write_json(args.out, {**old, "benchmark": "ground_control", key: rows})
+    if args.out and args.route == "stages":
+        _save(args.out, key, rows, False, False)
+    if args.calibration:
+        print(table(calibration(rows), CALIBRATION_COLUMNS))
     return 0
 
 

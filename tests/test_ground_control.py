@@ -298,3 +298,32 @@ def test_glacimap_run_with_four_corner_stops():
     assert sorted(row["control_used"]) == [(f"GCP{i}", "stop") for i in (1, 2, 3, 4)]
     assert row["ingest_stops"]["keyframes"] == 4
     assert row["shared_z_std_m"] < 0.15
+
+
+def test_calibration_table_of_the_seed_sweep_by_hand():
+    """``benchmarks/ground_control.py --calibration`` scores each seed's realised offset
+    against the stated shared 1-sigma. Hand values: sigma 0.5 m, keyframe offsets 0.5, -1.0,
+    0.25 m -> z = 1, -2, 0.5; mean -1/6, std (n-1) sqrt(31/12) = 1.6073, RMS sqrt(1.75) =
+    1.3229, |z| < 1.96 for 2 of 3. A failed seed is counted, not scored."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.ground_control import calibration, seed_list
+
+    assert seed_list(["0-3", "7", "10-11"]) == [0, 1, 2, 3, 7, 10, 11]
+    rows = [
+        {"case": "c", "seed": s, "shared_z_std_m": 0.5, "keyframe_z_mean_m": v}
+        | {"map_mean_error_m": 2 * v, "checkpoint_bias_m": 0.0}
+        for s, v in enumerate((0.5, -1.0, 0.25))
+    ]
+    rows.append({"case": "c", "seed": 9, "error": "InputError: ..."})
+    (cal,) = calibration(rows)
+    assert cal["n"] == 3 and cal["n_failed"] == 1
+    assert cal["z_kf"] == [1.0, -2.0, 0.5]
+    assert cal["kf_z_mean"] == pytest.approx(-1 / 6)
+    assert cal["kf_z_std"] == pytest.approx(np.sqrt(31 / 12))
+    assert cal["kf_z_rms"] == pytest.approx(np.sqrt(1.75))
+    assert cal["kf_in_1.96"] == pytest.approx(2 / 3)
+    assert cal["map_z_rms"] == pytest.approx(2 * np.sqrt(1.75))  # twice the offsets
+    assert cal["cp_z_rms"] == 0.0
+    lo, hi = cal["rms_z_90_if_calibrated"]  # chi-square, 3 dof: sqrt(0.3518/3), sqrt(7.815/3)
+    assert lo == pytest.approx(np.sqrt(0.35185 / 3), rel=1e-3)
+    assert hi == pytest.approx(np.sqrt(7.8147 / 3), rel=1e-3)
