@@ -23,11 +23,20 @@ DEFAULT_TOML = """\
 seed = 0                       # the one seed: terrain noise, sensors, GP subsets, bootstrap
 
 [site]
-kind = "default"               # "default": the embedded 600 m site; "random": random_terrain
+kind = "default"               # "default": the embedded 600 m site; "random": random_terrain;
+                               # "dem": the DEM file `dem` (docs/vision.md, toolkit/site_dem.py)
 bounds = [526000.0, 6475000.0, 526600.0, 6475600.0]  # west, south, east, north (m, crs)
 crs = "EPSG:32608"             # projected CRS (UTM 8N, Juneau Icefield)
 truth_resolution_m = 2.0       # cell of the true DEM the rover drives on
 relief_m = 25.0                # relief of a "random" site (m)
+dem = ""                       # kind = "dem": any GDAL raster (GeoTIFF...), any CRS, nodata ok;
+                               # a relative path is read from this file's folder. Reprojected
+                               # (cubic; average when coarsening) to crs at truth_resolution_m.
+                               # crs unset: the DEM's own if projected, else the UTM zone of its
+                               # centre (stated in the summary). bounds unset: the DEM's
+                               # valid-data extent (largest valid rectangle if it is ragged).
+max_nodata_fraction = 0.05     # kind = "dem": refuse a site with more nodata cells than this
+                               # share; fewer are filled from the nearest valid cell (counted)
 
 [plan]
 pattern = "lawnmower"          # "lawnmower" or "piecewise" (Eq 10)
@@ -208,8 +217,16 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         raise bad_input("seed", seed, "an integer >= 0", "seed = 0")
     if scenario["plan"]["pattern"] not in ("lawnmower", "piecewise"):
         raise bad_input("plan.pattern", scenario["plan"]["pattern"], "lawnmower|piecewise", "")
-    if scenario["site"]["kind"] not in ("default", "random"):
-        raise bad_input("site.kind", scenario["site"]["kind"], "'default' or 'random'", "")
+    if scenario["site"]["kind"] not in ("default", "random", "dem"):
+        raise bad_input(
+            "site.kind", scenario["site"]["kind"], "'default', 'random' or 'dem'", "pick one"
+        )
+    if scenario["site"]["kind"] == "dem":  # path, CRS and bounds resolved once, here
+        from .site_dem import resolve_dem_site
+
+        given = set(user.get("site", {})) | set((overrides or {}).get("site", {}))
+        base = Path(path).resolve().parent if path is not None else Path.cwd()
+        scenario["site"] = resolve_dem_site(scenario["site"], given, base)
     if int(scenario["plan"]["n_swaths"]) < 1:
         raise bad_input("plan.n_swaths", scenario["plan"]["n_swaths"], "an integer >= 1", "")
     if scenario["control"]["mode"] not in ("stops", "targets", "both"):

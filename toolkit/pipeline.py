@@ -72,6 +72,10 @@ def make_site(scenario: dict[str, Any]):
     site, seed = scenario["site"], int(scenario["seed"])
     if site["kind"] == "default":
         return default_site(resolution=float(site["truth_resolution_m"]))
+    if site["kind"] == "dem":  # resolved by load_scenario (toolkit.site_dem)
+        from .site_dem import dem_truth
+
+        return dem_truth(site)
     grid = Grid.from_bounds(tuple(site["bounds"]), float(site["truth_resolution_m"]), site["crs"])
     return random_terrain(grid, relief=float(site["relief_m"]), seed=seed, features=True)
 
