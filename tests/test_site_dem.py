@@ -125,7 +125,7 @@ def test_nodata_inside_the_site_is_counted_then_refused_above_the_share(tmp_path
     assert np.isfinite(site.values).all() and prov["max_fill_distance_m"] > 0
     small = [W0 + 840.0, N0 - 1080.0, W0 + 1080.0, N0 - 840.0]  # 240 m: hole > 5 %
     with pytest.raises(InputError, match=r"site\.bounds.*max_nodata_fraction"):
-        make_site(load_scenario(_scenario(tmp_path, dem="dem.tif", bounds=small)))
+        load_scenario(_scenario(tmp_path, dem="dem.tif", bounds=small))  # at load: no work
     loose = load_scenario(_scenario(tmp_path, dem="dem.tif", bounds=small, max_nodata_fraction=0.5))
     assert json.loads(make_site(loose).attrs["site_dem"])["nodata_cells_filled"] > 0.05 * 120**2
 
@@ -179,9 +179,14 @@ def test_each_bad_input_names_its_field(tmp_path, site, field):
         load_scenario(_scenario(tmp_path, **site))
 
 
-def test_cli_refuses_a_bad_dem_site_and_writes_nothing(tmp_path):
-    _utm_dem(tmp_path / "dem.tif")
-    bad = _scenario(tmp_path, dem="dem.tif", bounds=[W0 - 900.0, N0 - 600.0, W0, N0])
+@pytest.mark.parametrize("hole", [False, True])
+def test_cli_refuses_a_bad_dem_site_and_writes_nothing(tmp_path, hole):
+    if hole:  # bounds inside the DEM, 25 % of them nodata
+        _utm_dem(tmp_path / "dem.tif", (slice(0, 10), slice(0, 10)))
+        bad = _scenario(tmp_path, dem="dem.tif", bounds=[W0, N0 - 600.0, W0 + 600.0, N0])
+    else:  # bounds outside the DEM
+        _utm_dem(tmp_path / "dem.tif")
+        bad = _scenario(tmp_path, dem="dem.tif", bounds=[W0 - 900.0, N0 - 600.0, W0, N0])
     for cmd in (["run"], ["simulate", "--camera", "images"]):
         out = tmp_path / f"out_{cmd[0]}"
         res = CliRunner().invoke(app, [*cmd, "--config", str(bad), "--out", str(out)])

@@ -236,6 +236,8 @@ def run_scenario(
         "certificate": {k: cert[k] for k in cert if k not in ("scenario", "truth_metrics")},
         "timings_s": res.timings,
     }
+    if "site_dem" in truth.attrs:  # kind = "dem": the CRS, bounds and nodata, stated
+        res.summary["site"] = json.loads(truth.attrs["site_dem"])
     with atomic_path(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(res.summary, indent=2, default=_json_default))
     res.objects = {

@@ -278,6 +278,10 @@ def resolve_dem_site(site: dict[str, Any], given: set[str], base: Path) -> dict[
     nx = int(round((bounds[2] - bounds[0]) / res))
     ny = int(round((bounds[3] - bounds[1]) / res))
     _check_size(nx, ny, res, bounds, src, crs)
+    grid = Grid.from_bounds(bounds, res, crs)  # nodata share checked now, before any work
+    inv = Transformer.from_crs(crs, src.crs, always_xy=True)
+    near = _sample(values, transform, inv, grid, "nearest")
+    _check_nodata(int((~np.isfinite(near)).sum()), grid, frac, path)
     out["crs"] = crs.to_string()
     out["bounds"] = [float(v) for v in bounds]
     return out
@@ -351,20 +355,12 @@ def dem_truth(site: dict[str, Any]):
     dem_cell = _cell_size_m(src, crs)
     method = "cubic" if res <= dem_cell else "average"
     if method == "cubic":
-        out = _sample_exact(values, transform, to_src, grid)
+        out = _sample(values, transform, to_src, grid, "cubic")
     else:
         out = _average(values, transform, src.crs, grid)
     bad = ~np.isfinite(out)
     n_bad = int(bad.sum())
-    frac = float(site["max_nodata_fraction"])
-    if n_bad > frac * out.size:
-        raise bad_input(
-            "site.bounds",
-            f"{_fmt(grid.bounds)}: {n_bad} of {out.size} truth cells "
-            f"({100.0 * n_bad / out.size:.1f} %) nodata in {Path(site['dem']).name}",
-            f"a site with at most {100 * frac:g} % nodata (site.max_nodata_fraction)",
-            "move site.bounds inside the DEM's valid data, or fill the DEM (gdal_fillnodata.py)",
-        )
+    _check_nodata(n_bad, grid, float(site["max_nodata_fraction"]), Path(site["dem"]))
     max_fill = 0.0
     if n_bad:
         dist, (ii, jj) = distance_transform_edt(bad, return_indices=True)
@@ -376,11 +372,23 @@ def dem_truth(site: dict[str, Any]):
     )
 
 
-def _sample_exact(values: np.ndarray, transform, to_src: Transformer, grid: Grid) -> np.ndarray:
-    """Keys cubic convolution (GDAL's "cubic", :func:`terrain.raster_source.sample_pixels`)
-    at the exact PROJ transform of every truth cell centre (GDAL's warper approximates the
-    transform to 1/8 of a source cell: 11 m on a 90 m DEM, metres of elevation on a slope).
-    A truth cell whose nearest DEM cell is nodata is NaN (filled and counted by the caller).
+def _check_nodata(n_bad: int, grid: Grid, frac: float, path: Path) -> None:
+    if n_bad > frac * grid.size:
+        raise bad_input(
+            "site.bounds",
+            f"{_fmt(grid.bounds)}: {n_bad} of {grid.size} truth cells "
+            f"({100.0 * n_bad / grid.size:.1f} %) nodata in {path.name}",
+            f"a site with at most {100 * frac:g} % nodata (site.max_nodata_fraction)",
+            "move site.bounds inside the DEM's valid data, or fill the DEM (gdal_fillnodata.py)",
+        )
+
+
+def _sample(values: np.ndarray, transform, to_src: Transformer, grid: Grid, method: str):
+    """``values`` (source cells, NaN nodata) at the exact PROJ transform of every cell
+    centre of ``grid`` (GDAL's warper approximates the transform to 1/8 of a source cell:
+    11 m on a 90 m DEM, metres of elevation on a slope). ``method``: "nearest" or "cubic"
+    (Keys, as GDAL: :func:`terrain.raster_source.sample_pixels`); with "cubic" a cell whose
+    nearest DEM cell is nodata is NaN (filled and counted by the caller).
     """
     from terrain.raster_source import sample_pixels
 
@@ -391,8 +399,9 @@ def _sample_exact(values: np.ndarray, transform, to_src: Transformer, grid: Grid
         xx, yy = np.meshgrid(grid.x, grid.y[r0 : r0 + step])
         sx, sy = to_src.transform(xx, yy)
         col, row = inv.a * sx + inv.b * sy + inv.c, inv.d * sx + inv.e * sy + inv.f
-        z = sample_pixels(values, col, row, "cubic")
-        z[~np.isfinite(sample_pixels(values, col, row, "nearest"))] = np.nan
+        z = sample_pixels(values, col, row, method)
+        if method != "nearest":
+            z[~np.isfinite(sample_pixels(values, col, row, "nearest"))] = np.nan
         out[r0 : r0 + step] = z
     return out
 

@@ -170,6 +170,13 @@ def simulate_command(
     out_dir = ensure_writable_dir(out)
     with console.status("building the true terrain..."):
         truth = make_truth(scenario)
+    if "site_dem" in truth.attrs:  # kind = "dem": say which CRS and bounds were chosen
+        s = json.loads(truth.attrs["site_dem"])
+        console.print(
+            f"site from {s['dem']}: {s['site_crs']} ({s['site_crs_from']}), bounds "
+            f"{s['bounds']}, {s['resampling']} from {s['dem_cell_m']:g} m cells, "
+            f"{s['nodata_cells_filled']} nodata cells filled"
+        )
     scenario = survey_scenario(scenario)  # epoch 2: surveyed with seed + [change] seed_offset
     if survey_plan is None:
         survey_plan = make_plan(scenario, truth)
