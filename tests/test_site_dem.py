@@ -209,3 +209,22 @@ def test_a_survey_is_simulated_over_the_dem_site(tmp_path):
     z = log.truth["xyz"][:, 2]
     assert np.isfinite(z).all()
     assert float(truth.min()) - 2.0 <= z.min() and z.max() <= float(truth.max()) + 2.0
+
+
+def test_samples_csv_with_a_wkt_crs_column_is_read(tmp_path):
+    # a DEM whose CRS has no EPSG code (olinda_dem_utm25s.tif: UTM 25S on GRS80 with a
+    # TOWGS84 clause) makes localize write the WKT, commas and all, quoted in samples.csv
+    from pyproj import CRS
+
+    from toolkit.samples_io import read_samples
+
+    wkt = CRS.from_proj4("+proj=utm +zone=25 +south +ellps=GRS80 +towgs84=0,0,0 +units=m").to_wkt()
+    assert CRS.from_wkt(wkt).to_epsg() is None and "," in wkt
+    quoted = '"' + wkt.replace('"', '""') + '"'
+    rows = [f"{290000 + i},{9115000 + 2 * i},{10 + i},0.04,0.2,1.1,{quoted}" for i in range(5)]
+    path = tmp_path / "samples.csv"
+    path.write_text("x,y,z,z_var,track_z_std_m,shared_offset_std_m,crs\n" + "\n".join(rows) + "\n")
+    table = read_samples(path)
+    np.testing.assert_allclose(table.samples.z, 10.0 + np.arange(5))
+    np.testing.assert_allclose(table.samples.z_var, 0.04)
+    assert table.shared_z_std == 1.1 and CRS.from_user_input(table.samples.crs).equals(wkt)

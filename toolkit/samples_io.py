@@ -61,9 +61,11 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
             "--crs)",
             "pass --crs EPSG:32608 (or the survey's projected CRS); glacimap never guesses it",
         )
-    extra = np.genfromtxt(path, delimiter=",", names=True, dtype=float, encoding="utf-8")
-    extra = np.atleast_1d(extra)
-    names = {n.lower(): n for n in extra.dtype.names or ()}
+    import pandas as pd  # a quoted crs column (a WKT with commas) is one field
+
+    frame = pd.read_csv(path, encoding="utf-8")
+    extra = {c: pd.to_numeric(frame[c], errors="coerce").to_numpy(float) for c in frame.columns}
+    names = {str(n).lower(): n for n in extra}
     bad = table.nan_rows()
     if bad.any():
         raise bad_input(
