@@ -29,7 +29,7 @@ from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
-from .errors import DegenerateFitWarning, NumericalError, bad_input
+from .errors import DegenerateFitWarning, InputError, NumericalError, bad_input
 from .kernels import Matern, SquaredExponential
 from .vecchia import VecchiaPlan, nearest_neighbour_predict, vecchia_lml
 
@@ -233,7 +233,11 @@ def _cv_folds(X, gap, spacing, rng, n_folds: int = 5):
     block = max(4.0 * gap, 2.0 * spacing, 1e-3)
     extent = float(np.ptp(X, axis=0).max()) or 1.0
     while block > 1e-3 * extent:
-        fold, blocks = spatial_blocks(X, block, n_folds, rng)
+        try:
+            fold, blocks = spatial_blocks(X, block, n_folds, rng)
+        except InputError:  # fewer blocks than folds (samples on a line or two): smaller ones
+            block /= 2.0
+            continue
         if np.unique(blocks).size >= 2 * n_folds:
             return fold, block
         block /= 2.0
