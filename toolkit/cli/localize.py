@@ -251,6 +251,6 @@ def localize_command(
             path.write_text(json.dumps(record, indent=2))
     _print_counts(summary, [out_dir / n for n in names.values()])
     console.print(
-        f"next: glacimap reconstruct {out_dir / names['samples']} --crs {log.crs} "
-        "(z_var: Eq 7 elevation variance, m^2)"
+        f"next: glacimap reconstruct {out_dir / names['samples']} (its crs column names "
+        "the CRS; z_var: Eq 7 elevation variance, m^2)"
     )

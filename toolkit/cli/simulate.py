@@ -49,7 +49,13 @@ def read_plan(path: Path):
 
 
 def _print_log(log, plan, out_dir: Path, fmt: str) -> None:
-    table = Table(title=f"simulated traverse — seed {log.seed} — {log.crs}")
+    from pyproj import CRS
+
+    crs = CRS.from_user_input(log.crs)  # a WKT without EPSG code is pages long: its name
+    code = crs.to_epsg()
+    table = Table(
+        title=f"simulated traverse — seed {log.seed} — {f'EPSG:{code}' if code else crs.name}"
+    )
     table.add_column("quantity")
     table.add_column("value", justify="right")
     rows = {
