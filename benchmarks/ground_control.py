@@ -354,6 +354,12 @@ def calibration(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             row[f"{tag}_z_std"] = float(z.std(ddof=1)) if n > 1 else None
             row[f"{tag}_z_rms"] = float(np.sqrt(np.mean(z**2)))
             row[f"{tag}_in_1.96"] = float(np.mean(np.abs(z) < 1.96))
+        # what the map and the checkpoints add to the shared offset (m, RMS over seeds): the
+        # map's own mean error (prior, GP shape, along-track), which no stated sigma names
+        kf = np.array([r["keyframe_z_mean_m"] for r in ok])
+        for key, tag in Z_SOURCES[1:]:
+            d = np.array([r[key] for r in ok]) - kf
+            row[f"{tag}_minus_kf_rms_m"] = float(np.sqrt(np.mean(d**2)))
         out.append(row)
     return out
 
@@ -372,6 +378,8 @@ CALIBRATION_COLUMNS = [
             (f"{t}_in_1.96", f"{t} |z|<1.96", ".2f"),
         )
     ],
+    ("map_minus_kf_rms_m", "map-kf RMS", ".3f"),
+    ("cp_minus_kf_rms_m", "cp-kf RMS", ".3f"),
 ]
 
 

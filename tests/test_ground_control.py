@@ -324,6 +324,8 @@ def test_calibration_table_of_the_seed_sweep_by_hand():
     assert cal["kf_in_1.96"] == pytest.approx(2 / 3)
     assert cal["map_z_rms"] == pytest.approx(2 * np.sqrt(1.75))  # twice the offsets
     assert cal["cp_z_rms"] == 0.0
+    assert cal["map_minus_kf_rms_m"] == pytest.approx(np.sqrt(1.75 / 4))  # offsets again
+    assert cal["cp_minus_kf_rms_m"] == pytest.approx(np.sqrt(1.75 / 4))
     lo, hi = cal["rms_z_90_if_calibrated"]  # chi-square, 3 dof: sqrt(0.3518/3), sqrt(7.815/3)
     assert lo == pytest.approx(np.sqrt(0.35185 / 3), rel=1e-3)
     assert hi == pytest.approx(np.sqrt(7.8147 / 3), rel=1e-3)
