@@ -300,6 +300,47 @@ def run_process_case(case: str, seed: int) -> dict[str, Any]:
     }
 
 
+#: scaled-down calibration geometries (``--route small``): a 500 m leg, a turn, a 500 m leg
+#: back, ``apart`` m from the first (40 m: the camera's 25 m reach ties the legs; 150 m: it
+#: does not, as on the default lawnmower); a stop at each end only; default sensors
+SMALL_CASES = {"small40": 40.0, "small150": 150.0, "small40_pose": 40.0}
+
+
+def run_small_case(case: str, seed: int) -> dict[str, Any]:
+    """One seed of a :data:`SMALL_CASES` traverse, localized with its two end stops
+    (``_pose``: without the camera's landmarks): the realised keyframe vertical offset against
+    the stated shared 1-sigma, in seconds instead of minutes."""
+    from factorgraph.control_sim import simulate_control
+    from factorgraph.localize import LocalizeParams, localize
+    from factorgraph.sensors import CameraModel, GPSModel, SensorSuite
+    from factorgraph.simulate import simulate_traverse
+    from terrain.synthetic import default_site
+
+    w, n, apart = 526000.0, 6475600.0, SMALL_CASES[case]
+    wp = np.array([[w + 50, n - 75], [w + 550, n - 75], [w + 550, n - 75 - apart]])
+    wp = np.vstack([wp, [w + 50, n - 75 - apart]])
+    sensors = SensorSuite(
+        gps=GPSModel(rate_hz=0.5),
+        camera=CameraModel(texture_density_per_m2=0.05),
+        keyframe_dt_s=2.0,
+    )
+    log = simulate_traverse(default_site(2.0), wp, sensors, seed=seed)
+    log, ctrl, _ = simulate_control(log, [0, log.n_keyframes - 1])
+    loc = localize(log, LocalizeParams(use_landmarks=not case.endswith("_pose")), control=ctrl)
+    e = loc.keyframe_xyz - log.truth["xyz"]
+    return {
+        "case": case,
+        "seed": seed,
+        "route": "small",
+        "keyframes": int(log.n_keyframes),
+        "keyframe_z_mean_m": float(e[:, 2].mean()),
+        "shared_z_std_m": float(np.sqrt(loc.shared_offset_cov[2, 2])),
+        "keyframe_z_nees": float(np.mean(e[:, 2] ** 2 / loc.pose_cov_xyz[:, 2, 2])),
+        "map_mean_error_m": None,  # no map on this route
+        "checkpoint_bias_m": None,
+    }
+
+
 def _guarded(func, *args) -> dict[str, Any]:
     """``func(*args)``, or a row naming the failure (a sweep over seeds goes on; counted)."""
     try:
@@ -348,6 +389,8 @@ def calibration(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         lo, hi = np.sqrt(chi2.ppf([0.05, 0.95], n) / n)
         row["rms_z_90_if_calibrated"] = [float(lo), float(hi)]
         for key, tag in Z_SOURCES:
+            if any(r.get(key) is None for r in ok):  # --route small: no map, no checkpoints
+                continue
             z = np.array([r[key] for r in ok]) / sig
             row[f"z_{tag}"] = [round(float(v), 3) for v in z]
             row[f"{tag}_z_mean"] = float(z.mean())
@@ -358,6 +401,8 @@ def calibration(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         # map's own mean error (prior, GP shape, along-track), which no stated sigma names
         kf = np.array([r["keyframe_z_mean_m"] for r in ok])
         for key, tag in Z_SOURCES[1:]:
+            if any(r.get(key) is None for r in ok):
+                continue
             d = np.array([r[key] for r in ok]) - kf
             row[f"{tag}_minus_kf_rms_m"] = float(np.sqrt(np.mean(d**2)))
         out.append(row)
@@ -435,10 +480,12 @@ def _save(path: Path, key: str, rows: list[dict[str, Any]], merge: bool, calib: 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cases", nargs="+", default=None, choices=sorted({*CASES, *PROCESS_CASES}))
+    ap.add_argument(
+        "--cases", nargs="+", default=None, choices=sorted({*CASES, *PROCESS_CASES, *SMALL_CASES})
+    )
     ap.add_argument("--seeds", nargs="+", default=["0"], help="seeds and ranges: 0-11 20")
     ap.add_argument("--no-map", action="store_true", help="landmarks only (no GP, no certify)")
-    ap.add_argument("--route", choices=("stages", "process"), default="stages")
+    ap.add_argument("--route", choices=("stages", "process", "small"), default="stages")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(
         "--calibration",
@@ -447,9 +494,11 @@ def main(argv: list[str] | None = None) -> int:
         "1-sigma; rows and the per-case table go to calibration_rows / calibration",
     )
     args = ap.parse_args(argv)
-    if args.calibration and args.route != "process":
-        ap.error("--calibration runs on --route process (what glacimap run does)")
-    known = CASES if args.route == "stages" else PROCESS_CASES
+    if args.calibration and args.route == "stages":
+        ap.error("--calibration runs on --route process (what glacimap run does) or small")
+    if args.route == "small":
+        args.calibration = True  # the small route only measures calibration
+    known = {"stages": CASES, "process": PROCESS_CASES, "small": tuple(SMALL_CASES)}[args.route]
     cases = args.cases or list(known)
     if set(cases) - set(known):
         ap.error(f"--route {args.route} cases: {', '.join(known)}")
@@ -457,14 +506,16 @@ def main(argv: list[str] | None = None) -> int:
     cols = COLUMNS if args.route == "stages" else PROCESS_COLUMNS
     key = "rows" if args.route == "stages" else "process_rows"
     key = "calibration_rows" if args.calibration else key
+    key = "small_rows" if args.route == "small" else key
     for seed in seed_list(args.seeds):
         for case in cases:
             if args.route == "stages":
                 rows.append(in_subprocess(run_case, case, seed, not args.no_map))
             else:
-                rows.append(in_subprocess(_guarded, run_process_case, case, seed))
+                fn = run_small_case if args.route == "small" else run_process_case
+                rows.append(in_subprocess(_guarded, fn, case, seed))
             print(table(rows[-1:], cols), rows[-1].get("error", ""), flush=True)
-            if args.out and args.route == "process":  # saved row by row: a long sweep
+            if args.out and args.route != "stages":  # saved row by row: a long sweep
                 _save(args.out, key, rows, True, args.calibration)
     print(table(rows, cols))
     if args.out and args.route == "stages":
