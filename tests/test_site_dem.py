@@ -240,3 +240,30 @@ def test_kernel_search_folds_samples_on_two_lines():
     xy = np.column_stack([np.r_[np.zeros(30), np.full(30, 99.0)], y])
     fold, block = _cv_folds(xy, None, 2.0, np.random.default_rng(0))
     assert block < 100.0 and np.bincount(fold).size == 5 and np.bincount(fold).min() >= 6
+
+
+def test_south_up_and_feet_dems(tmp_path):
+    # rows running south -> north (transform e > 0) give the same truth as north-up
+    x = W0 + CELL * (np.arange(64) + 0.5)
+    y = N0 - 1920.0 + CELL * (np.arange(64) + 0.5)  # ascending
+    z = _quadratic(*np.meshgrid(x, y))
+    _write(tmp_path / "up.tif", z, rasterio.Affine(CELL, 0, W0, 0, CELL, N0 - 1920.0))
+    bounds = [W0 + 300.0, N0 - 1500.0, W0 + 1500.0, N0 - 300.0]
+    site = make_site(load_scenario(_scenario(tmp_path, dem="up.tif", bounds=bounds)))
+    xx, yy = np.meshgrid(site.x.values, site.y.values)
+    np.testing.assert_allclose(site.values, _quadratic(xx, yy), atol=1e-6, rtol=0)
+    # a projected CRS in US survey feet (NAD83 / Colorado Central ftUS): not the site CRS
+    ft = 3.28083333
+    _write(
+        tmp_path / "ft.tif",
+        np.full((40, 40), 3000.0),
+        from_origin(3_000_000.0, 1_700_000.0, 100.0, 100.0),
+        "EPSG:2232",
+    )
+    scen = load_scenario(_scenario(tmp_path, dem="ft.tif", truth_resolution_m=20.0))
+    assert scen["site"]["crs"].startswith("EPSG:326")  # UTM of the centre, in metres
+    w, s, e, n = scen["site"]["bounds"]
+    assert 4000.0 / ft * 0.95 < e - w < 4000.0 / ft  # 4000 ft of DEM, inner box
+    prov = json.loads(make_site(scen).attrs["site_dem"])
+    assert "UTM zone of the DEM's centre" in prov["site_crs_from"]
+    assert "foot" in prov["site_crs_from"]

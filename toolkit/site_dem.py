@@ -13,7 +13,8 @@ projected CRS at ``truth_resolution_m``:
   elevation step. When the truth cell is coarser than the DEM's, GDAL's *average*
   (area-weighted block mean) is used instead: an anti-aliased, unbiased coarsening.
 * **CRS:** ``site.crs`` when given (projected, metres); otherwise the DEM's own CRS when it
-  is projected, else the UTM zone (WGS 84) of the DEM's centre. The choice and its reason
+  is projected in metres, else (geographic, or projected in feet) the UTM zone (WGS 84) of
+  the DEM's centre. Elevations are taken as metres. The choice and its reason
   are stated in the truth's provenance (:func:`site_provenance`), printed by
   ``glacimap simulate`` and written into ``glacimap run``'s ``summary.json``: never silent.
 * **Bounds:** ``site.bounds`` when given (site CRS; must lie inside the DEM); otherwise the
@@ -100,6 +101,14 @@ def _open(path: Path):
             "a georeferenced, axis-aligned DEM raster that records its CRS",
             f"{exc} (assign a CRS: gdal_edit.py -a_srs EPSG:... {path.name})",
         ) from exc
+
+
+def _metric(crs: CRS) -> bool:
+    """A projected CRS whose axes are in metres (a US State Plane in feet is not: the site
+    then takes the UTM zone of the DEM's centre, as a geographic DEM does)."""
+    return bool(crs.is_projected) and all(
+        a.unit_name in ("metre", "meter") for a in crs.axis_info[:2]
+    )
 
 
 def _utm_of_centre(src) -> CRS:
@@ -259,7 +268,7 @@ def resolve_dem_site(site: dict[str, Any], given: set[str], base: Path) -> dict[
     if "crs" in given:
         crs = as_crs(site["crs"], "site.crs")
     else:
-        crs = src.crs if src.crs.is_projected else _utm_of_centre(src)
+        crs = src.crs if _metric(src.crs) else _utm_of_centre(src)
     to_site = Transformer.from_crs(src.crs, crs, always_xy=True)
     values, transform = src.read(src.bounds, pad=0)
     if not np.isfinite(values).any():
@@ -439,8 +448,12 @@ def site_provenance(
     """What :func:`dem_truth` did, in words and numbers (for the run summary)."""
     if crs.equals(src.crs):
         why = "the DEM's own CRS"
-    elif not src.crs.is_projected and crs.equals(_utm_of_centre(src)):
-        why = "the UTM zone of the DEM's centre (WGS 84)"
+    elif not _metric(src.crs) and crs.equals(_utm_of_centre(src)):
+        why = "the UTM zone of the DEM's centre (WGS 84)" + (
+            f"; the DEM's {src.crs.name} is in {src.crs.axis_info[0].unit_name}"
+            if src.crs.is_projected
+            else ""
+        )
     else:
         why = "site.crs"
     return {
