@@ -72,9 +72,11 @@ def _ring(b: tuple[float, float, float, float], n: int = _RING) -> tuple[np.ndar
 
 
 def _label(crs: CRS) -> str:
-    """``EPSG:n`` when the CRS has a code, else its name (a WKT is too long to print)."""
+    """``EPSG:n`` when the CRS has a code, else its PROJ string when short, else its name
+    (a WKT is too long to print)."""
     code = crs.to_epsg()
-    return f"EPSG:{code}" if code else crs.name
+    text = crs.to_string()
+    return f"EPSG:{code}" if code else (text if len(text) <= 120 else crs.name)
 
 
 def _fmt(b) -> str:
