@@ -210,6 +210,8 @@ def rebuild_gp(
     grid = Grid.from_dataarray(north_up(product))
     if samples.crs is None or not samples.crs.equals(grid.crs, ignore_axis_order=True):
         return None, f"{where.samples} is not in the map's CRS ({grid.crs.to_string()})"
+    if hasattr(mean, "for_grid"):  # as toolkit.stages.reconstruct_stage: cells over the map
+        mean.for_grid(grid)
     exact = str(attrs.get("method", "exact")).startswith("exact")
     gp = TerrainGP(
         kernel=kernel,

@@ -131,6 +131,8 @@ def reconstruct_stage(
         data gaps show), all in metres.
     """
     rc = settings["reconstruct"]
+    if hasattr(mean, "for_grid"):  # a RasterMean's coarse cells cover the map, not the samples
+        mean.for_grid(grid)
     gp = TerrainGP(
         mean=mean,  # kernel="auto": the family member with the best evidence (BIC)
         method=rc["method"],
