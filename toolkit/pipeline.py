@@ -68,7 +68,8 @@ def make_truth(scenario: dict[str, Any]):
 
 
 def make_site(scenario: dict[str, Any]):
-    """The scenario's ``[site]`` as it is (epoch 1)."""
+    """The scenario's ``[site]`` as it is (epoch 1): the embedded site, a random one, or a
+    DEM file (``kind = "dem"``, :func:`toolkit.site_dem.dem_truth`)."""
     site, seed = scenario["site"], int(scenario["seed"])
     if site["kind"] == "default":
         return default_site(resolution=float(site["truth_resolution_m"]))

@@ -10,8 +10,11 @@ projected CRS at ``truth_resolution_m``:
   cell edge: the renderer's Lambert shading shows those creases as lines on the snow (false
   features) and the rover's tilt jumps there. Cubic convolution is C1 (continuous slopes)
   and reproduces quadratics exactly; its overshoot is bounded by a few percent of a cell's
-  elevation step. When the truth cell is coarser than the DEM's, GDAL's *average*
-  (area-weighted block mean) is used instead: an anti-aliased, unbiased coarsening.
+  elevation step. It is evaluated at the exact PROJ transform of every truth cell centre
+  (:func:`terrain.raster_source.sample_pixels`): GDAL's warper approximates the transform
+  to 1/8 of a source cell, 0.4 m of elevation on a lon/lat test plane. When the truth cell
+  is coarser than the DEM's, GDAL's *average* (area-weighted block mean) is used instead:
+  an anti-aliased, unbiased coarsening.
 * **CRS:** ``site.crs`` when given (projected, metres); otherwise the DEM's own CRS when it
   is projected in metres, else (geographic, or projected in feet) the UTM zone (WGS 84) of
   the DEM's centre. Elevations are taken as metres. The choice and its reason
@@ -22,9 +25,11 @@ projected CRS at ``truth_resolution_m``:
   ``max_nodata_fraction`` of that box is nodata (a country-shaped DEM), the largest
   rectangle of valid cells inside it. Derived bounds are snapped inwards to whole truth
   cells.
-* **Nodata** inside the site: counted; more than ``site.max_nodata_fraction`` (default
-  5 %) of the truth cells -> :class:`~terrain.errors.InputError`; fewer are filled from the
-  nearest valid cell (counted, with the largest fill distance).
+* **Nodata** inside the site (a truth cell whose nearest DEM cell is nodata): counted when
+  the scenario is loaded, before anything is written; more than
+  ``site.max_nodata_fraction`` (default 5 %) of the truth cells ->
+  :class:`~terrain.errors.InputError`; fewer are filled from the nearest valid cell
+  (counted, with the largest fill distance).
 
 :func:`resolve_dem_site` runs when the scenario is loaded (``toolkit.config``): it resolves
 the path (relative to the scenario file's folder), the CRS and the bounds, so that every
