@@ -306,7 +306,7 @@ def test_calibration_table_of_the_seed_sweep_by_hand():
     0.25 m -> z = 1, -2, 0.5; mean -1/6, std (n-1) sqrt(31/12) = 1.6073, RMS sqrt(1.75) =
     1.3229, |z| < 1.96 for 2 of 3. A failed seed is counted, not scored."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from benchmarks.ground_control import calibration, seed_list
+    from benchmarks._calibration import calibration, seed_list
 
     assert seed_list(["0-3", "7", "10-11"]) == [0, 1, 2, 3, 7, 10, 11]
     rows = [
