@@ -45,7 +45,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "scripts"))
 from _harness import table, write_json  # noqa: E402
 
-SITES = ("olinda", "rm", "glacier", "prism")
+SITES = ("olinda", "rm", "glacier", "prism", "lux")
 SIZES = (3000, 50_000)
 METHODS = (
     "delaunay",

@@ -9,6 +9,8 @@ elevation data, downloaded with ``apt-get download`` and unpacked with ``dpkg -x
             2.5 arc-minutes, longitude/latitude.
 ``prism``   r-cran-fields ``data/PRISMelevation.rda``: conterminous US at 2.5 arc-minutes,
             NaN over the oceans.
+``lux``     r-cran-terra ``ex/elev.tif``: Luxembourg, 95 x 90 at 30 arc-seconds (~1 km),
+            longitude/latitude, nodata outside the country.
 ``glacier`` r-cran-fields ``data/glacier.rda``: 8,338 points digitised from the contours of a
             real glacier (locations in km, elevations in m), gridded here by cubic
             interpolation inside their hull.
@@ -47,6 +49,7 @@ from terrain import ElevationSamples, Grid  # noqa: E402
 
 PACKAGES = {
     "r-cran-stars": {"olinda": "usr/lib/R/site-library/stars/tif/olinda_dem_utm25s.tif"},
+    "r-cran-terra": {"lux": "usr/lib/R/site-library/terra/ex/elev.tif"},
     "r-cran-fields": {
         "rm": "usr/lib/R/site-library/fields/data/RMelevation.rda",
         "prism": "usr/lib/R/site-library/fields/data/PRISMelevation.rda",
@@ -66,7 +69,7 @@ def cache_dir() -> Path:
 
 
 def fetch(cache: Path | None = None) -> Path:
-    """Download and unpack the packages once; return the cache folder with the four files."""
+    """Download and unpack the packages once; return the cache folder with the real DEM files."""
     cache = Path(cache or cache_dir())
     if all((cache / f).exists() for f in FILES.values()):
         return cache
@@ -107,18 +110,18 @@ def _read_rda(path: Path, name: str) -> dict:
 def load(name: str) -> xr.DataArray:
     """A real DEM as a north-up ``DataArray`` (dims y, x) in its own CRS, metres of elevation.
 
-    ``olinda`` keeps its UTM 25S CRS; ``rm`` and ``prism`` are in EPSG:4326 (degrees: a
+    ``olinda`` keeps its UTM 25S CRS; ``rm``, ``prism`` and ``lux`` are in EPSG:4326 (degrees: a
     geographic DEM, as a user's satellite product may be); ``glacier`` is gridded at 100 m
     in a local transverse Mercator frame (its locations are km in an unnamed plane).
     """
     if name not in FILES:
         raise ValueError(f"name: expected one of {NAMES}, got {name!r}")
     path = fetch() / FILES[name]
-    if name == "olinda":
+    if name in ("olinda", "lux"):
         import rasterio
 
         with rasterio.open(path) as ds:
-            z = ds.read(1).astype(float)
+            z = ds.read(1, masked=True).astype(float).filled(np.nan)
             t = ds.transform
             crs = ds.crs.to_wkt()
         x = t.c + t.a * (np.arange(z.shape[1]) + 0.5)
