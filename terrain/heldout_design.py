@@ -289,19 +289,29 @@ def map_calibration(
         rows = np.flatnonzero(np.isin(block, keep))
     sub_block = np.unique(block[rows], return_inverse=True)[1].ravel()
     nb = int(sub_block.max()) + 1
-    # The replicates' spread around the (sub)sample's own estimate, computed the same way
-    # (_EM_STEPS EM steps from the full estimate), is laid around the full estimate; with a
+    # The replicates' spread around the (sub)sample's own estimate, computed the same way,
+    # is laid around the full estimate; with a
     # subsample it is shrunk by sqrt(m / n) blocks (m-out-of-n bootstrap, Bickel, Goetze &
     # van Zwet 1997).
     full = np.array([out["map_coverage_68"], out["map_coverage_95"]])
-    centre = np.array(_coverage(_mixture(lik[rows], w[rows], pi, _EM_STEPS)))
+    rr, lvr, nvr = resid[rows], latent_var[rows], noise_var[rows]
+
+    def estimate(wr: np.ndarray) -> tuple[float, float]:
+        # the whole estimator on a (re)weighted subsample: one-scale fit, then EM from it
+        # (warm-starting at the full estimate instead left the replicates where they
+        # started: glacier 50k gave [62.8, 63.2] % around a 63.0 % that missed the truth's
+        # 69.9 % by the one-scale fit's own sampling error)
+        k = one_scale_ratio(rr, lvr, nvr, wr)
+        return _coverage(_mixture(lik[rows], wr, _start(k), _EM_STEPS))
+
+    centre = np.array(estimate(w[rows]))
     scale = math.sqrt(nb / n_blocks)
     cov = []
     for _ in range(n_boot):
         count = np.bincount(rng.integers(0, nb, nb), minlength=nb)
         wb = w[rows] * count[sub_block]
         if wb.sum() > 0:
-            cov.append(_coverage(_mixture(lik[rows], wb, pi, _EM_STEPS)))
+            cov.append(estimate(wb))
     if cov:
         c = full + (np.asarray(cov) - centre) * scale  # (n_boot, 2)
         c = np.clip(c, 0.0, 1.0)
