@@ -36,7 +36,7 @@ from .linear_mean import OffsetScaleMean, check_xy, check_z, coefficient_table, 
 from .prior import TriangulatedMean, coarse_dem
 from .raster_source import RasterSource, open_source, sample_pixels
 
-__all__ = ["RESAMPLING", "RasterMean"]
+__all__ = ["RESAMPLING", "RasterMean", "gdal_average"]
 
 #: Resampling methods of the reprojection (``rasterio.enums.Resampling`` names).
 RESAMPLING = ("bilinear", "cubic", "nearest", "average")
@@ -319,7 +319,7 @@ class RasterMean(OffsetScaleMean):
             if self.resampling != "average":
                 out[r0 : r0 + step] = sample_pixels(values, col, row, self.resampling)
         if self.resampling == "average":
-            out = _gdal_average(values, transform, src.crs, grid)
+            out = gdal_average(values, transform, src.crs, grid)
         bad = ~np.isfinite(out)
         if bad.all():
             raise bad_input(
@@ -429,7 +429,7 @@ class RasterMean(OffsetScaleMean):
         return out
 
 
-def _gdal_average(values: np.ndarray, transform: Any, crs: CRS, grid: Grid) -> np.ndarray:
+def gdal_average(values: np.ndarray, transform: Any, crs: CRS, grid: Grid) -> np.ndarray:
     """GDAL's area-weighted average of the source cells under each lattice cell."""
     import rasterio.warp
     from rasterio.enums import Resampling

@@ -49,6 +49,7 @@ from pyproj import CRS, Transformer
 
 from terrain.errors import InputError, bad_input
 from terrain.grid import Grid, as_crs
+from terrain.raster_mean import gdal_average
 
 __all__ = [
     "MAX_TRUTH_CELLS",
@@ -373,7 +374,7 @@ def dem_truth(site: dict[str, Any]):
     if method == "cubic":
         out = _sample(values, transform, to_src, grid, "cubic")
     else:
-        out = _average(values, transform, src.crs, grid)
+        out = gdal_average(values, transform, src.crs, grid)
     bad = ~np.isfinite(out)
     n_bad = int(bad.sum())
     _check_nodata(n_bad, grid, float(site["max_nodata_fraction"]), Path(site["dem"]))
@@ -419,26 +420,6 @@ def _sample(values: np.ndarray, transform, to_src: Transformer, grid: Grid, meth
         if method != "nearest":
             z[~np.isfinite(sample_pixels(values, col, row, "nearest"))] = np.nan
         out[r0 : r0 + step] = z
-    return out
-
-
-def _average(values: np.ndarray, transform, src_crs: CRS, grid: Grid) -> np.ndarray:
-    """GDAL's area-weighted *average* onto ``grid`` (a truth coarser than the DEM)."""
-    import rasterio.warp
-    from rasterio.enums import Resampling
-
-    out = np.full(grid.shape, np.nan)
-    rasterio.warp.reproject(
-        values,
-        out,
-        src_transform=transform,
-        src_crs=src_crs.to_wkt(),
-        src_nodata=np.nan,
-        dst_transform=grid.transform,
-        dst_crs=grid.crs.to_wkt(),
-        dst_nodata=np.nan,
-        resampling=Resampling.average,
-    )
     return out
 
 
