@@ -175,3 +175,43 @@ def test_missing_samples_file_is_an_error(epochs, tmp_path):
     assert res.exit_code != 0
     assert "--samples-after" in str(res.exception)
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.fixture(scope="module")
+def tiled_epochs(tmp_path_factory):
+    """The same two epochs reconstructed with ``[reconstruct] method = "tiled"``: products
+    whose provenance says tiled, which the CLI must rebuild as tiled GPs."""
+    d = tmp_path_factory.mktemp("gp_epochs_tiled")
+    truth = default_site(resolution=4.0)
+    outline = default_outline(DEFAULT_SITE_BOUNDS)
+    after = second_epoch(truth, outline, seed=3)
+    path = lawnmower(DEFAULT_SITE_BOUNDS, 4, margin=20.0).waypoints
+    grid = Grid.from_bounds(DEFAULT_SITE_BOUNDS, 10.0)
+    settings = load_scenario(overrides={"reconstruct": {"max_fit_samples": 300, "method": "tiled"}})
+    rec_b = _epoch(d / "before", truth, path, 1, 0.05, grid, settings)
+    rec_a = _epoch(d / "after", after, path, 2, -0.1, grid, settings)
+    gpkg = _write_polygon(d / "glacier.gpkg", outline)
+    return d, outline, gpkg, rec_b, rec_a
+
+
+def test_cli_gp_route_on_tiled_products_matches_the_library(tiled_epochs, tmp_path):
+    # Reference: the library's GP route on the in-memory tiled GPs (the same
+    # volume_change(..., models=...) as the exact case above).
+    d, outline, gpkg, rec_b, rec_a = tiled_epochs
+    assert str(rec_b.product.attrs.get("method", "")).startswith("tiled")
+    ds = xr.open_dataset(d / "before" / "product.nc").load()
+    gp, note = rebuild_gp(ds, locate_product(d / "before", None, "BEFORE"))
+    assert gp is not None, note
+    assert gp.method == "tiled"
+    out = tmp_path / "out"
+    res = runner.invoke(
+        app, ["change", str(d / "before"), str(d / "after"), "--outline", str(gpkg),
+              "--out", str(out)],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    assert vol["route"] == "gp_structure"
+    diff = difference(rec_b.product, rec_a.product, coregister=False)
+    ref = volume_change(diff, outline, models=(rec_b.gp, rec_a.gp))
+    assert vol["volume_m3"] == pytest.approx(ref.volume_m3, rel=1e-9)
+    assert vol["volume_std_m3"] == pytest.approx(ref.volume_std_m3, rel=1e-6)
