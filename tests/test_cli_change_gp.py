@@ -81,21 +81,33 @@ def _epoch(folder, truth, path, seed, offset, grid, settings):
     return rec
 
 
-@pytest.fixture(scope="module")
-def epochs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("gp_epochs")
+def _make_epochs(d, settings):
+    """Two epochs of the default site (before, after a known change) as product folders."""
     truth = default_site(resolution=4.0)
     outline = default_outline(DEFAULT_SITE_BOUNDS)
     after = second_epoch(truth, outline, seed=3)
     path = lawnmower(DEFAULT_SITE_BOUNDS, 4, margin=20.0).waypoints
     grid = Grid.from_bounds(DEFAULT_SITE_BOUNDS, 10.0)  # 60 x 60 cells
-    settings = load_scenario(overrides={"reconstruct": {"max_fit_samples": 300}})
     rec_b = _epoch(d / "before", truth, path, 1, 0.05, grid, settings)
     rec_a = _epoch(d / "after", after, path, 2, -0.1, grid, settings)
     gpkg = _write_polygon(d / "glacier.gpkg", outline)
     W = outline_weights(grid, outline)
     true_v = float(np.sum(W * (after - truth).interp(x=grid.x, y=grid.y).values))
     return d, outline, gpkg, rec_b, rec_a, true_v
+
+
+def _change(d, gpkg, out):
+    """``glacimap change BEFORE AFTER --outline`` on the two folders; the CLI result."""
+    return runner.invoke(
+        app, ["change", str(d / "before"), str(d / "after"), "--outline", str(gpkg),
+              "--out", str(out)],
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def epochs(tmp_path_factory):
+    settings = load_scenario(overrides={"reconstruct": {"max_fit_samples": 300}})
+    return _make_epochs(tmp_path_factory.mktemp("gp_epochs"), settings)
 
 
 def test_rebuilt_gp_reproduces_the_map(epochs):
@@ -116,10 +128,7 @@ def test_rebuilt_gp_reproduces_the_map(epochs):
 def test_cli_gp_route_matches_the_library(epochs, tmp_path):
     d, outline, gpkg, rec_b, rec_a, true_v = epochs
     out = tmp_path / "out"
-    res = runner.invoke(
-        app, ["change", str(d / "before"), str(d / "after"), "--outline", str(gpkg),
-              "--out", str(out)],
-    )  # fmt: skip
+    res = _change(d, gpkg, out)
     assert res.exit_code == 0, res.output
     assert "route: gp_structure" in res.output
     vol = json.loads((out / "volume.json").read_text())
@@ -181,33 +190,21 @@ def test_missing_samples_file_is_an_error(epochs, tmp_path):
 def tiled_epochs(tmp_path_factory):
     """The same two epochs reconstructed with ``[reconstruct] method = "tiled"``: products
     whose provenance says tiled, which the CLI must rebuild as tiled GPs."""
-    d = tmp_path_factory.mktemp("gp_epochs_tiled")
-    truth = default_site(resolution=4.0)
-    outline = default_outline(DEFAULT_SITE_BOUNDS)
-    after = second_epoch(truth, outline, seed=3)
-    path = lawnmower(DEFAULT_SITE_BOUNDS, 4, margin=20.0).waypoints
-    grid = Grid.from_bounds(DEFAULT_SITE_BOUNDS, 10.0)
     settings = load_scenario(overrides={"reconstruct": {"max_fit_samples": 300, "method": "tiled"}})
-    rec_b = _epoch(d / "before", truth, path, 1, 0.05, grid, settings)
-    rec_a = _epoch(d / "after", after, path, 2, -0.1, grid, settings)
-    gpkg = _write_polygon(d / "glacier.gpkg", outline)
-    return d, outline, gpkg, rec_b, rec_a
+    return _make_epochs(tmp_path_factory.mktemp("gp_epochs_tiled"), settings)
 
 
 def test_cli_gp_route_on_tiled_products_matches_the_library(tiled_epochs, tmp_path):
     # Reference: the library's GP route on the in-memory tiled GPs (the same
     # volume_change(..., models=...) as the exact case above).
-    d, outline, gpkg, rec_b, rec_a = tiled_epochs
+    d, outline, gpkg, rec_b, rec_a, _ = tiled_epochs
     assert str(rec_b.product.attrs.get("method", "")).startswith("tiled")
     ds = xr.open_dataset(d / "before" / "product.nc").load()
     gp, note = rebuild_gp(ds, locate_product(d / "before", None, "BEFORE"))
     assert gp is not None, note
     assert gp.method == "tiled"
     out = tmp_path / "out"
-    res = runner.invoke(
-        app, ["change", str(d / "before"), str(d / "after"), "--outline", str(gpkg),
-              "--out", str(out)],
-    )  # fmt: skip
+    res = _change(d, gpkg, out)
     assert res.exit_code == 0, res.output
     vol = json.loads((out / "volume.json").read_text())
     assert vol["route"] == "gp_structure"
