@@ -294,7 +294,7 @@ def map_calibration(
     # subsample it is shrunk by sqrt(m / n) blocks (m-out-of-n bootstrap, Bickel, Goetze &
     # van Zwet 1997).
     full = np.array([out["map_coverage_68"], out["map_coverage_95"]])
-    rr, lvr, nvr = resid[rows], latent_var[rows], noise_var[rows]
+    rr, lvr, nvr, lik_r = resid[rows], latent_var[rows], noise_var[rows], lik[rows]
 
     def estimate(wr: np.ndarray) -> tuple[float, float]:
         # the whole estimator on a (re)weighted subsample: one-scale fit, then EM from it
@@ -302,7 +302,7 @@ def map_calibration(
         # started: glacier 50k gave [62.8, 63.2] % around a 63.0 % that missed the truth's
         # 69.9 % by the one-scale fit's own sampling error)
         k = one_scale_ratio(rr, lvr, nvr, wr)
-        return _coverage(_mixture(lik[rows], wr, _start(k), _EM_STEPS))
+        return _coverage(_mixture(lik_r, wr, _start(k), _EM_STEPS))
 
     centre = np.array(estimate(w[rows]))
     scale = math.sqrt(nb / n_blocks)
