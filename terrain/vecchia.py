@@ -73,27 +73,35 @@ class VecchiaPlan:
         return cls(order=order, neighbours=order[nbr], m=m, _cache={})
 
     def pair_sq(self, X: np.ndarray, start: int, batch: int) -> tuple[np.ndarray, np.ndarray]:
-        """Squared coordinate differences (b, m+1, m+1, 2) and their sum over the axes
-        (b, m+1, m+1) of the conditioning sets at tail
-        positions [start, start + batch), each set ordered neighbours first, then the sample.
+        """Squared coordinate differences (b, P, 2) and their sum over the axes (b, P) of
+        the conditioning sets at tail positions [start, start + batch), each set ordered
+        neighbours first, then the sample; P = (m+1)(m+2)/2 pairs of the upper triangle
+        (:func:`_upper`): the blocks are symmetric, so the kernel is evaluated once per pair.
         Cached per (X, batch): an optimizer evaluates the same sets many times."""
         key = (id(X), X.shape, start, batch)
         if key not in self._cache:
             idx = self.order[self.m :][start : start + batch]
             sets = np.concatenate([self.neighbours[start : start + batch], idx[:, None]], 1)
             P = X[sets]
-            D = P[:, :, None, :] - P[:, None, :, :]
+            iu, ju = _upper(self.m + 1)
+            D = P[:, iu, :] - P[:, ju, :]
             sq = D * D
             self._cache[key] = (sq, sq.sum(-1))
         return self._cache[key]
 
 
-def _pair_tensors(kernel, sq: np.ndarray):
-    """Covariance blocks of point sets and their log-parameter derivatives.
+def _upper(k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the upper triangle (diagonal included) of a k x k block."""
+    return np.triu_indices(k)
 
-    ``sq`` (b, k, k, d) holds the squared coordinate differences of each set's pairs per
-    axis (cached in the plan: they do not change with the hyperparameters). Returns C
-    (b, k, k) and a list of dC (b, k, k), one per kernel theta.
+
+def _pair_tensors(kernel, sq: np.ndarray, gradients: bool = True):
+    """Covariances of point pairs and their log-parameter derivatives.
+
+    ``sq`` (..., d) holds the squared coordinate differences of the pairs per axis (cached
+    in the plan: they do not change with the hyperparameters), or a tuple (per-axis,
+    summed). Returns C (...) and a list of dC (...), one per kernel theta (empty unless
+    ``gradients``), in the layout of ``sq`` (full blocks or packed upper triangles).
     """
     parts = getattr(kernel, "parts", (kernel,))
     if isinstance(sq, tuple):  # (per-axis, summed) from the plan's cache
@@ -105,10 +113,16 @@ def _pair_tensors(kernel, sq: np.ndarray):
     for p in parts:
         ls = p.lengths
         d2 = total / (ls[0] * ls[0]) if ls.size == 1 else (sq / (ls * ls)).sum(-1)
-        Kp = p.variance * p._rho(d2)
+        if not gradients:
+            Kp = p._rho_overwrite(d2)
+            Kp *= p.variance
+            C = Kp if C is None else C + Kp
+            continue
+        rho, g = p._rho_and_dlog(d2)
+        Kp = p.variance * rho
         C = Kp if C is None else C + Kp
         grads.append(Kp)  # d/dlog variance
-        g = p.variance * p._drho_dlog_ls(d2)
+        g *= p.variance
         if ls.size == 1:
             grads.append(g * d2)
         else:
@@ -161,10 +175,15 @@ def vecchia_lml(
     out = gaussian_lml(kernel, X[head], r[head], noise_var[head], eval_gradient, True, nugget)
     lml, grad = out if eval_gradient else (out, None)
     tail = plan.order[m:]
+    iu, ju = _upper(m + 1)
+    off = iu != ju
     for start in range(0, tail.size, batch):
         idx = tail[start : start + batch]
         nb = plan.neighbours[start : start + batch]
-        C, dCs = _pair_tensors(kernel, plan.pair_sq(X, start, batch))
+        Cp, dCs = _pair_tensors(kernel, plan.pair_sq(X, start, batch), eval_gradient)
+        C = np.empty((idx.size, m + 1, m + 1))
+        C[:, iu, ju] = Cp
+        C[:, ju, iu] = Cp
         nv = noise_var[np.concatenate([nb, idx[:, None]], axis=1)]
         diag = np.arange(m + 1)
         C[:, diag, diag] += nv
@@ -183,22 +202,22 @@ def vecchia_lml(
         lml += float(np.sum(-0.5 * e * e / s2 - 0.5 * np.log(s2)) - 0.5 * idx.size * _LOG_2PI)
         if not eval_gradient:
             continue
-        # d mu = dc^T alpha - b^T dC_N alpha;  d s2 = dc_ii - 2 dc^T b + b^T dC_N b
+        # d mu = dc^T alpha - b^T dC_N alpha;  d s2 = dc_ii - 2 dc^T b + b^T dC_N b, so
+        # d lml = sum_b w_mu d mu + w_s2 d s2 is linear in dC: one weight tensor W per batch
+        # and d lml / d theta_j = <dC_j, W> (one dot product per hyperparameter).
         w_mu, w_s2 = e / s2, 0.5 * (e * e / s2 - 1.0) / s2
-        extra = [] if nugget is None else [None]
-        for j, dC in enumerate(list(dCs) + extra):
-            if dC is None:  # nugget: dC = nugget * I on the diagonal, zero off it
-                dmu = -nugget * np.einsum("bj,bj->b", bvec, alpha)
-                ds2 = nugget * (1.0 + np.einsum("bj,bj->b", bvec, bvec))
-            else:
-                dCn, dc, dcii = dC[:, :m, :m], dC[:, :m, m], dC[:, m, m]
-                dmu = np.einsum("bj,bj->b", dc, alpha) - np.einsum("bj,bjk,bk->b", bvec, dCn, alpha)
-                ds2 = (
-                    dcii
-                    - 2.0 * np.einsum("bj,bj->b", dc, bvec)
-                    + np.einsum("bj,bjk,bk->b", bvec, dCn, bvec)
-                )
-            grad[j] += float(np.sum(w_mu * dmu + w_s2 * ds2))
+        W = np.zeros_like(C)
+        W[:, :m, :m] = bvec[:, :, None] * (w_s2[:, None] * bvec - w_mu[:, None] * alpha)[:, None, :]
+        W[:, :m, m] = w_mu[:, None] * alpha - 2.0 * w_s2[:, None] * bvec
+        W[:, m, m] = w_s2
+        Wp = W[:, iu, ju]  # packed: an off-diagonal pair stands for both (k, l) and (l, k)
+        Wp[:, off] += W[:, ju[off], iu[off]]
+        for j, dC in enumerate(dCs):
+            grad[j] += float(np.vdot(dC, Wp))
+        if nugget is not None:  # dC = nugget * I on the diagonal, zero off it
+            dmu = -nugget * np.einsum("bj,bj->b", bvec, alpha)
+            ds2 = nugget * (1.0 + np.einsum("bj,bj->b", bvec, bvec))
+            grad[len(dCs)] += float(np.sum(w_mu * dmu + w_s2 * ds2))
     return (lml, np.asarray(grad)) if eval_gradient else lml
 
 
@@ -236,7 +255,7 @@ def nearest_neighbour_predict(
         sl = slice(s, s + batch)
         P = np.concatenate([X[nb[sl]], Xq[sl, None, :]], axis=1)  # (b, m + 1, 2)
         D = P[:, :, None, :] - P[:, None, :, :]
-        C, _ = _pair_tensors(kernel, D * D)
+        C, _ = _pair_tensors(kernel, D * D, gradients=False)
         Cn, c = C[:, :m, :m], C[:, :m, m]
         Cn[:, np.arange(m), np.arange(m)] += noise_var[nb[sl]]
         sol = np.linalg.solve(Cn, np.stack([r[nb[sl]], c], axis=-1))
