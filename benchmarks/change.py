@@ -46,6 +46,7 @@ from _harness import table, write_json  # noqa: E402
 SHARED_OFFSET_SD = 0.085
 N_SAMPLES = 1500  # landmarks per epoch (exact GP)
 MC_RESOLUTION = 4.0  # m, reconstruction grid of the Monte Carlo (150 x 150 cells)
+CONTROL = {"n_targets": 4, "mode": "stops"}  # the chain's ground control (_change_chain)
 #: Stable ground = the site outside the outline grown by this much, m: the GP maps smear the
 #: glacier's thinning over ~1-2 length scales onto the ground next to the outline.
 STABLE_BUFFER_M = 40.0
@@ -219,98 +220,6 @@ def summarize(pairs: list[dict]) -> list[dict]:
     )
 
 
-#: The chain Monte Carlo's smaller plan: a 300 m x 300 m square in the middle of the default
-#: site (the truth and the prior DEM cover the whole 600 m site, so every landmark is over
-#: the prior), 4 lawnmower swaths with a 10 m margin; the glacier is default_outline of it.
-CHAIN_BOUNDS = (526150.0, 6475150.0, 526450.0, 6475450.0)
-CHAIN_SWATHS = 4
-
-
-def _chain_epoch(truth, plan, seed: int, grid):
-    """One epoch through the real chain: simulate (GPS with Gauss-Markov bias, odometry,
-    camera tracks) -> iSAM2 -> select (Eq 7) -> reconstruct_stage (kernel by evidence, the
-    simulated 75 m prior DEM as the mean, offset fitted), as glacimap run does. Returns the
-    reconstruction, the realised survey offset (mean vertical error of the keyframes, m) and
-    the selection counts."""
-    from factorgraph.sensors import SensorSuite
-    from factorgraph.simulate import simulate_traverse
-    from toolkit.config import load_scenario
-    from toolkit.field_survey import simulated_prior
-    from toolkit.processing import prior_mean
-    from toolkit.stages import localize_stage, reconstruct_selection, select_stage
-
-    settings = load_scenario(overrides={"seed": seed})
-    log = simulate_traverse(truth, plan, SensorSuite.from_dict(settings["sensors"]), seed=seed)
-    loc = localize_stage(log, settings)
-    sel = select_stage(loc, settings)
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(3,)))
-    p = settings["prior"]
-    prior = simulated_prior(truth, p["resolution_m"], p["offset_m"], p["noise_sd_m"], rng)
-    rec = reconstruct_selection(sel, grid, prior_mean(prior, settings), settings, seed, 0)
-    offset = float(np.mean(loc.keyframe_xyz[:, 2] - log.truth["xyz"][:, 2]))
-    return rec, offset, sel.counts
-
-
-def chain_pair(seed: int) -> dict:
-    """A pair of epochs through the real chain on the smaller plan: the same plan, the site
-    after second_epoch(seed) for epoch 2, each survey with its own seed (2k, 2k + 1)."""
-    from survey.lawnmower import lawnmower
-    from terrain import Grid, default_outline, default_site, difference, second_epoch
-    from terrain.volume import outline_weights, volume_change
-
-    t0 = time.perf_counter()
-    truth = default_site(resolution=2.0)
-    outline = default_outline(CHAIN_BOUNDS)
-    after_truth = second_epoch(truth, outline, seed=seed)
-    plan = lawnmower(CHAIN_BOUNDS, CHAIN_SWATHS, margin=10.0)
-    grid = Grid.from_bounds(CHAIN_BOUNDS, MC_RESOLUTION)
-    rec_b, off_b, cnt_b = _chain_epoch(truth, plan, 2 * seed, grid)
-    rec_a, off_a, cnt_a = _chain_epoch(after_truth, plan, 2 * seed + 1, grid)
-    diff = difference(rec_b.product, rec_a.product, coregister=False)
-    W = outline_weights(grid, outline)
-    true_v = float(np.sum(W * (after_truth - truth).interp(x=grid.x, y=grid.y).values))
-    gpv = volume_change(diff, outline, models=(rec_b.gp, rec_a.gp))
-    var = volume_change(diff, outline)  # the variogram of dh outside the outline
-    resp = [gpv.details[f"gp_{k}"]["offset_response_m2"] for k in ("before", "after")]
-    return {
-        "seed": seed,
-        "true_volume_m3": true_v,
-        "volume_m3": gpv.volume_m3,
-        "sigma_glacimap_m3": gpv.volume_std_m3,
-        "sigma_gp_only_m3": float(np.hypot(gpv.budget_m3["gp_before"], gpv.budget_m3["gp_after"])),
-        "sigma_independent_m3": gpv.independent_std_m3,
-        "sigma_variogram_m3": var.volume_std_m3,
-        "budget_m3": gpv.budget_m3,
-        "offsets_realised_m": [off_b, off_a],
-        "offset_error_m3": off_a * resp[1] - off_b * resp[0],
-        "shared_offset_std_m": [
-            rec_b.product.attrs["shared_vertical_offset_std_m"],
-            rec_a.product.attrs["shared_vertical_offset_std_m"],
-        ],
-        "n_samples": [int(rec_b.samples.n), int(rec_a.samples.n)],
-        "kernels": [repr(rec_b.gp.kernel_), repr(rec_a.gp.kernel_)],
-        "selection_counts": [cnt_b, cnt_a],
-        "seconds": time.perf_counter() - t0,
-    }
-
-
-def summarize_chain(pairs: list[dict]) -> list[dict]:
-    """z = error / sigma per method; the last row removes each pair's realised survey offsets
-    (their response times the keyframes' mean vertical error) and divides by the GP term
-    alone: what is left is the GP's error plus the along-track correlated error."""
-    err = np.array([p["volume_m3"] - p["true_volume_m3"] for p in pairs])
-    rel = err - np.array([p["offset_error_m3"] for p in pairs])
-    return z_rows(
-        pairs,
-        (
-            ("glacimap (GP posterior + offsets)", "sigma_glacimap_m3", err),
-            ("per-cell independent (control)", "sigma_independent_m3", err),
-            ("variogram of stable dh (control)", "sigma_variogram_m3", err),
-            ("GP term only, realised offsets removed", "sigma_gp_only_m3", rel),
-        ),
-    )
-
-
 def speed_part(n_samples: int = 1500) -> dict:
     from survey.lawnmower import lawnmower
     from terrain import (
@@ -355,13 +264,19 @@ def speed_part(n_samples: int = 1500) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=50)
-    ap.add_argument("--parts", default="coreg,mc,speed", help="coreg, mc, chain, speed")
+    ap.add_argument(
+        "--parts", default="coreg,mc,speed", help="coreg, mc, calib, calib-pool, chain, speed"
+    )
     ap.add_argument("--chain-pairs", type=int, default=20)
+    ap.add_argument("--chain-seed0", type=int, default=0, help="first pair seed of the chain")
+    ap.add_argument("--no-control", action="store_true", help="chain / calib without control")
+    ap.add_argument("--calib-surveys", type=int, default=8)
+    ap.add_argument("--calib-seed0", type=int, default=1000)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/change.json")
     args = ap.parse_args()
     parts = args.parts.split(",")
     payload: dict = {
-        "command": f"python benchmarks/change.py --pairs {args.pairs} --parts {args.parts}",
+        "command": "python benchmarks/change.py " + " ".join(sys.argv[1:]),
         "caveat": "timings on a shared 2-core machine (other jobs running): inflated",
     }
     if "coreg" in parts:
@@ -400,11 +315,43 @@ def main() -> None:
         cols += [("rms_error_m3", "rms err m3", ".0f"), ("z_mean", "z mean", "+.2f")]
         cols += [("z_spread", "z spread", ".2f"), ("coverage_95", "in 95%", ".2f")]
         print(table(summary, cols))
+    if "calib-pool" in parts:  # re-pool the epochs of an earlier calib run (its --out JSON)
+        import json
+
+        from _change_chain import pool_calibration
+
+        payload = json.loads(args.out.read_text())
+        block = payload["along_track_calibration"]
+        block["pooled"] = pool_calibration(block["epochs"])
+        print(block["pooled"]["fit"])
+    if "calib" in parts:
+        from _change_chain import LAG_EDGES_S, calib_epoch, pool_calibration
+        from threadpoolctl import threadpool_limits
+
+        epochs: list[dict] = []
+        block = {"epochs": epochs, "lag_edges_s": LAG_EDGES_S.tolist(), "control": CONTROL}
+        payload["along_track_calibration"] = block
+        with threadpool_limits(1):
+            for seed in range(args.calib_seed0, args.calib_seed0 + args.calib_surveys):
+                epochs.append(calib_epoch(seed, control=not args.no_control))
+                e = epochs[-1]
+                print(
+                    f"calib survey {seed}: n {e['n']}, nees {e['nees']:.2f}, "
+                    f"offset {e['offset_realised_m']:+.3f} m ({e['seconds']:.1f} s)",
+                    flush=True,
+                )
+                write_json(args.out, payload)
+        block["pooled"] = pool_calibration(epochs)
+        print(block["pooled"]["fit"])
+        pooled = block["pooled"]
+        for lag, c, n in zip(pooled["lag_s"], pooled["corr"], pooled["pairs"], strict=True):
+            print(f"  lag {lag:8.1f} s  corr {c:+.3f}  pairs {n:.0f}")
     if "chain" in parts:
+        from _change_chain import CHAIN_BOUNDS, CHAIN_SWATHS, chain_pair, summarize_chain
         from threadpoolctl import threadpool_limits
 
         pairs, failures = [], []
-        block: dict = {
+        block = {
             "pairs": pairs,
             "failures": failures,
             "settings": {
@@ -413,15 +360,16 @@ def main() -> None:
                 "plan": f"survey.lawnmower {CHAIN_SWATHS} swaths, margin 10 m (both epochs)",
                 "chain": "factorgraph.simulate_traverse (default sensors, seed 2k / 2k+1) -> "
                 "toolkit.stages.localize_stage -> select_stage -> reconstruct_stage (75 m "
-                "simulated prior DEM as the mean), no ground control",
+                "simulated prior DEM as the mean)",
+                "control": "none" if args.no_control else f"{CONTROL} (2 cm)",
                 "grid_resolution_m": MC_RESOLUTION,
             },
         }
         payload["chain_monte_carlo"] = block
         with threadpool_limits(1):
-            for seed in range(args.chain_pairs):
+            for seed in range(args.chain_seed0, args.chain_seed0 + args.chain_pairs):
                 try:
-                    pairs.append(chain_pair(seed))
+                    pairs.append(chain_pair(seed, control=not args.no_control))
                 except Exception as exc:  # noqa: BLE001 - a failed pair is counted, not fatal
                     failures.append({"seed": seed, "error": f"{type(exc).__name__}: {exc}"})
                     print(f"chain pair {seed}: failed ({failures[-1]['error']})", flush=True)

@@ -137,6 +137,26 @@ class LocalizationResult:
     def n_landmarks(self) -> int:
         return int(self.landmark_id.size)
 
+    def landmark_time_s(self) -> np.ndarray:
+        """Mean observation time of each landmark (L,), s on the log's clock.
+
+        The average of the keyframe times ``log.t[k]`` of every observation of the landmark in
+        the log (the times its triangulation leans on). The rover's trajectory error is
+        correlated in time (the GPS bias wanders with its time constant), so landmarks seen
+        in the same minute share an error: :mod:`terrain.along_track` needs this time.
+        """
+        ids = self.landmark_id
+        if ids.size == 0:
+            return np.zeros(0)
+        log = self.log
+        seen = np.isin(log.obs_id, ids)
+        pos = np.searchsorted(ids, log.obs_id[seen])
+        t = np.asarray(log.t, float)[log.obs_k[seen]]
+        n = np.bincount(pos, minlength=ids.size)
+        total = np.bincount(pos, weights=t, minlength=ids.size)
+        # a landmark in the graph has >= 2 observations; guard the division anyway
+        return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
     def true_landmarks(self) -> np.ndarray:
         """True positions (L, 3) of the landmarks, from the log's truth (simulation only)."""
         tr = self.log.truth

@@ -39,11 +39,13 @@ class LandmarkSelection:
     Attributes
     ----------
     samples : ElevationSamples
-        x, y (projected CRS of the log, m), z (m), z_var (m^2) of the kept landmarks.
+        x, y (projected CRS of the log, m), z (m), z_var (m^2) of the kept landmarks;
+        ``extra``: ``landmark_id`` and ``t_s`` (mean observation time, s).
     table : dict of ndarray
         One row per landmark in the graph: ``landmark_id``, ``x``, ``y``, ``z``,
         ``sigma_max_m`` (largest relative 1-sigma semi-axis), ``sigma_max_full_m``,
-        ``z_std_m``, ``first_seen_distance_m``, ``n_views``, ``kept``, ``reason``.
+        ``z_std_m``, ``first_seen_distance_m``, ``n_views``, ``t_s`` (mean observation
+        time, s: :meth:`LocalizationResult.landmark_time_s`), ``kept``, ``reason``.
     counts : dict
         Landmarks removed by each rule, and ``kept`` / ``in_graph`` totals; tracks that never
         became landmarks are in ``never_initialised`` (by reason).
@@ -158,12 +160,13 @@ def select_landmarks(
             "survey longer (GPS averages out over minutes) or loosen max_sigma",
         )
     proj = result.to_projected(xyz)
+    t_obs = result.landmark_time_s()
     samples = ElevationSamples(
         proj[kept, :2],
         proj[kept, 2],
         z_var[kept],
         crs=result.log.crs,
-        extra={"landmark_id": result.landmark_id[kept]},
+        extra={"landmark_id": result.landmark_id[kept], "t_s": t_obs[kept]},
         duplicates="average",
     )
     table = {
@@ -177,6 +180,7 @@ def select_landmarks(
         "z_std_slope_m": np.sqrt(z_var_slope),
         "first_seen_distance_m": result.first_seen_distance_m,
         "n_views": result.n_views,
+        "t_s": t_obs,
         "kept": kept,
         "reason": reason.astype(str),
     }

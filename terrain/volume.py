@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solve_triangular
 
+from .along_track import AlongTrackModel, along_track_quadratic
 from .coregister import as_polygons
 from .errors import bad_input, positive_number
 from .grid import Grid, north_up
@@ -114,10 +115,12 @@ def gp_integral(
     -------
     dict
         ``prior_m6`` (w^T K w), ``explained_m6`` (v^T (K+N)^-1 v), ``mean_coef_m6``,
-        ``posterior_var_m6`` (their combination), ``offset_response_m2`` (u^T 1) and
-        ``route`` (how the factor was obtained).
+        ``posterior_var_m6`` (their combination), ``offset_response_m2`` (u^T 1),
+        ``sample_weights`` (u, shape (n,), m^2: the estimate of ``I`` is ``u^T z`` over the
+        GP's samples ``sample_index``, so an error ``e`` of the samples moves it by
+        ``u^T e``) and ``route`` (how the factor was obtained).
     """
-    X, L, Wb, cov_b, route = _factor(gp, subset_max, seed)
+    X, L, Wb, cov_b, route, idx = _factor(gp, subset_max, seed)
     W = np.asarray(weights, float)
 
     def cov(lags: np.ndarray) -> np.ndarray:
@@ -138,23 +141,31 @@ def gp_integral(
     explained = float(Lv @ Lv)
     response = float(L1 @ Lv)
     coef = 0.0
+    Lu = Lv
     if cov_b is not None:
         hq = np.asarray(gp.mean_.basis(q + gp.X_offset_), float)
         R = wq @ hq - Wb.T @ Lv  # R&W Eq 2.42 for the functional
         coef = float(R @ cov_b @ R)
+        Lu = Lv + Wb @ (cov_b @ R)
         response += float((L1 @ Wb) @ cov_b @ R)
+    # The estimator's weights: I_hat = u^T y with u = (K+N)^-1 (v + H cov(beta) R), i.e.
+    # u = L^-T (L^-1 v + L^-1 H cov(beta) R) (R&W Eq 2.42); u^T 1 is the offset response.
+    u = solve_triangular(L, Lu, lower=True, trans="T", check_finite=False)
     return {
         "prior_m6": prior,
         "explained_m6": explained,
         "mean_coef_m6": coef,
         "posterior_var_m6": max(prior - explained, 0.0) + coef,
         "offset_response_m2": response,
+        "sample_weights": u,
+        "sample_index": idx,
         "route": route,
     }
 
 
 def _factor(gp: Any, subset_max: int, seed: int):
-    """(X centred, L, L^-1 H or None, coefficient covariance or None, route) of a fitted GP.
+    """(X centred, L, L^-1 H or None, coefficient covariance or None, route, sample index)
+    of a fitted GP (the index: which of the GP's samples ``X`` holds).
 
     Exact GP: its own factor. Tiled GP (no global factor): an exact GP at the fitted
     hyperparameters on a seeded random subset of at most ``subset_max`` samples. A GP's
@@ -172,7 +183,8 @@ def _factor(gp: Any, subset_max: int, seed: int):
             gp.L_,
             getattr(gp, "W_", None),
             getattr(gp, "coef_cov_", None),
-            ("exact GP posterior"),
+            "exact GP posterior",
+            np.arange(gp.X_train_.shape[0]),
         )
     n = gp.X_train_.shape[0]
     idx = np.arange(n)
@@ -189,7 +201,7 @@ def _factor(gp: Any, subset_max: int, seed: int):
         _, cov_b = gls_coefficients(gp.kernel_, X, gp.y_resid_[idx], noise, H, L)
         Wb = solve_triangular(L, H, lower=True, check_finite=False)
     route = f"tiled GP: exact GP on {idx.size} of {n} samples (upper bound)"
-    return X, L, Wb, cov_b, route
+    return X, L, Wb, cov_b, route, idx
 
 
 def _check_density(density: Any) -> tuple[float, float]:
@@ -211,6 +223,7 @@ def volume_change(
     shared_offset_std: tuple[float, float] | None = None,
     stable: Any = None,
     seed: int = 0,
+    along_track: AlongTrackModel | bool = True,
 ) -> VolumeChange:
     """Volume change (m^3), mean dh, mass change and the 1-sigma of each, by source.
 
@@ -232,6 +245,12 @@ def volume_change(
         Stable cells for the variogram (default: outside the outline).
     seed : int
         Seed of the variogram's pair subsample.
+    along_track : AlongTrackModel or bool
+        The along-track correlated error of each GP's samples (:mod:`terrain.along_track`):
+        ``True`` the measured default model, ``False`` left out (stated in ``details``).
+        Needs each sample's observation time, ``extra["t_s"]`` of the GP's samples (what
+        ``select_landmarks`` and ``samples.csv`` carry); without it the term is stated as
+        not available in ``details["along_track"]``, not taken as zero.
 
     Returns
     -------
@@ -274,9 +293,16 @@ def volume_change(
     details: dict[str, Any] = {}
     if models is not None:
         method = "gp_posterior"
+        model = _along_track_model(along_track)
+        details["along_track"] = {"model": None if model is None else model.to_dict()}
         for name, gp in zip(("before", "after"), models, strict=True):
             g = gp_integral(gp, grid, W, seed=seed)
             budget[f"gp_{name}"] = float(np.sqrt(g["posterior_var_m6"]))
+            at = _along_track_term(gp, g, model)
+            details["along_track"][name] = at
+            if at["status"] == "included":
+                budget[f"along_track_{name}"] = float(np.sqrt(max(at["variance_m6"], 0.0)))
+            g = {k: v for k, v in g.items() if k not in ("sample_weights", "sample_index")}
             details[f"gp_{name}"] = g
             if co is None:
                 s_o = _offset_std(diff, name, shared_offset_std)
@@ -304,11 +330,20 @@ def volume_change(
     mass = rho * volume
     mass_sd = float(np.hypot(rho * vol_sd, volume * rho_sd))
     details["method_note"] = (
-        "GP posterior covariance integrated over the outline + shared survey offsets"
+        "GP posterior covariance integrated over the outline + shared survey offsets + "
+        "along-track correlated error of the samples"
         if method == "gp_posterior"
         else "variogram of dh on stable ground (Rolstad 2009 / Hugonnet 2022), integrated over "
         "the outline: the fallback for DEMs without a known error model"
     )
+    missing = [
+        f"{k}: {v['status']}"
+        for k, v in details.get("along_track", {}).items()
+        if isinstance(v, dict) and "status" in v and v["status"] != "included"
+    ]
+    if missing:  # stated, never a silent zero
+        details["method_note"] += "; along-track term NOT in the 1-sigma (" + "; ".join(missing)
+        details["method_note"] += ")"
     return VolumeChange(
         volume_m3=volume,
         volume_std_m3=vol_sd,
@@ -325,6 +360,47 @@ def volume_change(
         n_cells_filled=n_filled,
         details=details,
     )
+
+
+def _along_track_model(along_track: Any) -> AlongTrackModel | None:
+    if along_track is True:
+        return AlongTrackModel()
+    if along_track is False or along_track is None:
+        return None
+    if not isinstance(along_track, AlongTrackModel):
+        raise bad_input(
+            "along_track", type(along_track).__name__, "True, False or an AlongTrackModel", ""
+        )
+    return along_track
+
+
+def _along_track_term(gp: Any, g: dict[str, Any], model: AlongTrackModel | None) -> dict:
+    """The along-track variance of one epoch's integral: ``u^T C u - sum u_i^2 s_i^2`` with
+    ``u`` the estimator's sample weights, ``s_i^2 = fraction z_var_i`` and
+    ``C_ij = s_i s_j exp(-|t_i - t_j| / tau)`` (:mod:`terrain.along_track`); the diagonal is
+    already in the GP term (the GP's noise ``z_var``). A negative value (possible only with
+    weights of mixed sign) is kept in ``variance_m6`` and counted as 0 in the budget."""
+    if model is None:
+        return {"status": "not included (along_track=False)"}
+    extra = getattr(getattr(gp, "samples_", None), "extra", {}) or {}
+    if "t_s" not in extra:
+        return {
+            "status": "not available: the samples carry no observation time (t_s); "
+            "re-export samples.csv with glacimap >= this version"
+        }
+    idx = g["sample_index"]
+    t = np.asarray(extra["t_s"], float)[idx]
+    ok = np.isfinite(t)
+    s = np.sqrt(model.fraction * np.asarray(gp.z_var_, float)[idx])
+    u = g["sample_weights"]
+    var = along_track_quadratic(u[ok], t[ok], s[ok], model.tau_s, off_diagonal=True)
+    return {
+        "status": "included",
+        "variance_m6": float(var),
+        "n_samples": int(ok.sum()),
+        "n_without_time": int((~ok).sum()),  # counted: their along-track share is left out
+        "independent_part_m6": float(np.sum((u[ok] * s[ok]) ** 2)),
+    }
 
 
 def _offset_std(diff: Any, name: str, given: tuple[float, float] | None) -> float:

@@ -212,3 +212,58 @@ def test_gp_route_budget_offsets_or_coregistration(fitted):
     vco = volume_change(dco, outline, models=(gp, gp))
     assert "coregistration_bias" in vco.budget_m3
     assert not any(k.startswith("shared_offset") for k in vco.budget_m3)
+
+
+def test_sample_weights_are_a_refit_with_perturbed_samples(fitted):
+    """u (the estimator's weights, R&W Eq 2.42 with the GLS constant): a refit at the same
+    hyperparameters with the samples moved by a random d moves the integral by u^T d."""
+    gp, s, grid = fitted
+    w = outline_weights(grid, box(W0 + 40, S0 + 30, W0 + 170, S0 + 150))
+    g = gp_integral(gp, grid, w)
+    u = g["sample_weights"]
+    assert u.shape == (s.n,) and np.array_equal(g["sample_index"], np.arange(s.n))
+    assert u.sum() == pytest.approx(g["offset_response_m2"], rel=1e-9)
+    d = np.random.default_rng(5).normal(0, 0.5, s.n)
+    moved = ElevationSamples(s.xy, s.z + d, s.z_var, crs=s.crs)
+    gp2 = TerrainGP(kernel=gp.kernel_, optimize=False, nugget=1e-3, nugget_bounds="fixed")
+    m1 = gp.predict(grid.xy()).reshape(grid.shape)
+    m2 = gp2.fit(moved).predict(grid.xy()).reshape(grid.shape)
+    assert np.sum(w * (m2 - m1)) == pytest.approx(u @ d, rel=1e-6)
+
+
+def test_along_track_term_in_the_budget(fitted):
+    """With observation times in the samples the budget has along_track_before/after =
+    sqrt(u^T C u - sum u_i^2 s_i^2), s_i^2 = fraction z_var_i (dense C here); without them
+    the term is stated as not available, not zero; along_track=False leaves it out."""
+    from terrain.along_track import AlongTrackModel
+
+    gp, s, grid = fitted
+    t = np.random.default_rng(2).uniform(0, 900, s.n)
+    st = ElevationSamples(s.xy, s.z, s.z_var, crs=s.crs, extra={"t_s": t})
+    kw = {"kernel": gp.kernel_, "optimize": False, "nugget": 1e-3, "nugget_bounds": "fixed"}
+    gpt = TerrainGP(**kw).fit(st)
+    p = gpt.predict_grid(grid)
+    outline = box(W0 + 60, S0 + 60, W0 + 140, S0 + 140)
+    d = difference(p, p, coregister=False)
+    model = AlongTrackModel(fraction=0.8, tau_s=60.0)
+    vc = volume_change(d, outline, models=(gpt, gpt), along_track=model)
+    u = gp_integral(gpt, grid, outline_weights(grid, outline))["sample_weights"]
+    sd = np.sqrt(0.8 * s.z_var)
+    C = sd[:, None] * sd[None, :] * np.exp(-np.abs(t[:, None] - t[None, :]) / 60.0)
+    ref = u @ (C - np.diag(np.diag(C))) @ u
+    assert ref > 0
+    assert vc.budget_m3["along_track_after"] == pytest.approx(np.sqrt(ref), rel=1e-8)
+    assert vc.details["along_track"]["before"]["status"] == "included"
+    total = sum(v**2 for v in vc.budget_m3.values())
+    assert vc.volume_std_m3 == pytest.approx(np.sqrt(total), rel=1e-12)
+    off = volume_change(d, outline, models=(gpt, gpt), along_track=False)
+    assert "along_track_after" not in off.budget_m3
+    assert vc.volume_std_m3**2 == pytest.approx(off.volume_std_m3**2 + 2 * ref, rel=1e-9)
+    # samples without times (an old samples.csv): stated, not silently zero
+    p0 = gp.predict_grid(grid)
+    v0 = volume_change(difference(p0, p0, coregister=False), outline, models=(gp, gp))
+    assert "along_track_after" not in v0.budget_m3
+    assert v0.details["along_track"]["after"]["status"].startswith("not available")
+    assert "along-track term NOT in the 1-sigma" in v0.details["method_note"]
+    with pytest.raises(InputError, match="along_track"):
+        volume_change(d, outline, models=(gpt, gpt), along_track="yes")

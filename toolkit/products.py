@@ -69,21 +69,26 @@ def landmark_table(loc: LocalizationResult, sel: LandmarkSelection) -> dict[str,
 def samples_table(sel: LandmarkSelection) -> dict[str, np.ndarray]:
     """The selected landmarks as terrain samples ``x, y, z, z_var`` (m, m^2) plus what the
     error budget needs (:mod:`toolkit.error_budget`): ``track_z_std_m`` (relative vertical
-    1-sigma, m) and the survey's ``shared_offset_std_m`` (m, one value repeated). It is the
-    table ``glacimap reconstruct SAMPLES.csv`` reads, so the chained commands give the same
-    1-sigma as ``glacimap run`` / ``process``."""
+    1-sigma, m), the survey's ``shared_offset_std_m`` (m, one value repeated) and, when the
+    selection has it, ``t_s``: the landmark's mean observation time (s, the log's clock; the
+    along-track correlation of :mod:`terrain.along_track`). It is the table ``glacimap
+    reconstruct SAMPLES.csv`` and ``glacimap change`` read, so the chained commands give the
+    same 1-sigma as ``glacimap run`` / ``process``."""
     s, kept = sel.samples, sel.table["kept"]
     track = sel.table["z_std_m"][kept] if kept.sum() == s.n else np.sqrt(s.z_var)
     shared = float(sel.shared_offset_std_m[2])
-    return {
+    out = {
         "x": s.xy[:, 0],
         "y": s.xy[:, 1],
         "z": s.z,
         "z_var": s.z_var,
         "track_z_std_m": track,  # relative vertical 1-sigma: the along-track error term
         "shared_offset_std_m": np.full(s.n, shared),
-        "crs": np.full(s.n, s.crs.to_string() if s.crs is not None else ""),  # never guessed
     }
+    if "t_s" in s.extra:  # optional: a selection made before observation times were kept
+        out["t_s"] = np.asarray(s.extra["t_s"], float)
+    out["crs"] = np.full(s.n, s.crs.to_string() if s.crs is not None else "")  # never guessed
+    return out
 
 
 def write_csv(path: Path, table: dict[str, np.ndarray]) -> Path:

@@ -20,7 +20,7 @@ from .certify_io import read_checkpoints
 __all__ = ["SampleTable", "read_samples"]
 
 #: Optional columns of a samples table (what ``glacimap localize`` / ``process`` write).
-OPTIONAL = ("z_var", "track_z_std_m", "shared_offset_std_m")
+OPTIONAL = ("z_var", "track_z_std_m", "shared_offset_std_m", "t_s")
 
 
 class SampleTable:
@@ -41,8 +41,11 @@ def _utm_for(lon: np.ndarray, lat: np.ndarray) -> CRS:
 
 
 def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
-    """Read ``x, y, z[, z_var, track_z_std_m, shared_offset_std_m]`` (aliases as for
-    checkpoints: easting/northing/elevation, lon/lat/height...).
+    """Read ``x, y, z[, z_var, track_z_std_m, shared_offset_std_m, t_s]`` (aliases as for
+    checkpoints: easting/northing/elevation, lon/lat/height...). ``t_s`` (each sample's mean
+    observation time, s) goes into the samples' ``extra["t_s"]``: the along-track term of
+    :func:`terrain.volume_change` needs it; a file without it still reads (the term is then
+    stated as not available).
 
     Raises
     ------
@@ -64,8 +67,10 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
     import pandas as pd  # a quoted crs column (a WKT with commas) is one field
 
     frame = pd.read_csv(path, encoding="utf-8")
-    extra = {c: pd.to_numeric(frame[c], errors="coerce").to_numpy(float) for c in frame.columns}
-    names = {str(n).lower(): n for n in extra}
+    extra_cols = {
+        c: pd.to_numeric(frame[c], errors="coerce").to_numpy(float) for c in frame.columns
+    }
+    names = {str(n).lower(): n for n in extra_cols}
     bad = table.nan_rows()
     if bad.any():
         raise bad_input(
@@ -77,12 +82,25 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
         tr = Transformer.from_crs(table.crs, map_crs, always_xy=True)
         xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
         note = f"geographic coordinates projected to {map_crs.to_string()} ({map_crs.name})"
-    z_var = extra[names["z_var"]] if "z_var" in names else np.zeros(table.n)
-    track = extra[names["track_z_std_m"]] if "track_z_std_m" in names else np.sqrt(z_var)
+    z_var = extra_cols[names["z_var"]] if "z_var" in names else np.zeros(table.n)
+    track = extra_cols[names["track_z_std_m"]] if "track_z_std_m" in names else np.sqrt(z_var)
     shared = (
-        float(extra[names["shared_offset_std_m"]][0]) if "shared_offset_std_m" in names else 0.0
+        float(extra_cols[names["shared_offset_std_m"]][0])
+        if "shared_offset_std_m" in names
+        else 0.0
     )
-    samples = ElevationSamples(xy, table.z, z_var, crs=map_crs.to_string())
+    extra = {}
+    if "t_s" in names:
+        t = np.asarray(extra_cols[names["t_s"]], float)
+        if not np.isfinite(t).all():
+            raise bad_input(
+                "SAMPLES t_s",
+                f"{int((~np.isfinite(t)).sum())} rows without a time",
+                "a finite observation time (s) on every row, or no t_s column",
+                "fix or drop the column",
+            )
+        extra["t_s"] = t
+    samples = ElevationSamples(xy, table.z, z_var, crs=map_crs.to_string(), extra=extra)
     if samples.n != table.n:  # duplicates merged: the along-track term per merged sample
         track = np.sqrt(samples.z_var)
     return SampleTable(samples, np.asarray(track, float), shared, note)
