@@ -92,7 +92,7 @@ def test_localize_tables_and_counts(chain):
     assert np.array_equal(traj["k"], np.arange(81)) and (traj[["std_x", "std_z"]] > 0).all().all()
     assert len(lms) == counts["in_graph"] > 0
     # samples + what the error budget needs, so reconstruct gives run's sigma; CRS named
-    cols = ["x", "y", "z", "z_var", "track_z_std_m", "shared_offset_std_m", "crs"]
+    cols = ["x", "y", "z", "z_var", "track_z_std_m", "shared_offset_std_m", "t_s", "crs"]
     assert list(samples.columns) == cols
     np.testing.assert_allclose(samples["shared_offset_std_m"], summary["shared_offset_std_m"][2])
     assert (samples["crs"] == "EPSG:32608").all()
