@@ -206,6 +206,9 @@ def change_command(
         write_volume_tables(vc, tmp / FILES["json"], tmp / FILES["csv"], **extra)
         write_change_report(tmp / FILES["report"], diff, vc, glacier, profile)
     console.print(f"route: {route} ({route_reason})")
+    for name, at in (vc.details.get("along_track") or {}).items():
+        if isinstance(at, dict) and "status" in at:  # included, or said why not: never silent
+            console.print(f"along-track term, {name}: {at['status']}")
     console.print(
         f"dV = {vc.volume_m3:,.0f} +- {vc.volume_std_m3:,.0f} m^3 over {vc.area_m2:,.0f} m^2 "
         f"(mean dh {vc.mean_dh_m:+.3f} +- {vc.mean_dh_std_m:.3f} m; {vc.method}); "
