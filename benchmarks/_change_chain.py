@@ -177,12 +177,19 @@ def summarize_chain(pairs: list[dict]) -> list[dict]:
     error plus the along-track correlated error, over the GP term alone and over the GP and
     along-track terms. Rows 7-8 isolate the samples' own errors: ``u^T r`` (the estimator's
     weights times the realised relative errors of the samples, both epochs) over the 1-sigma
-    of independent errors ``sqrt(sum u_i^2 z_var_i)``, and with the along-track term."""
+    of independent errors ``sqrt(sum u_i^2 z_var_i)``, and with the along-track term. Row 9:
+    the realised offsets' effect over the two stated shared-offset terms."""
     from change import z_rows
 
     err = np.array([p["volume_m3"] - p["true_volume_m3"] for p in pairs])
     rel = err - np.array([p["offset_error_m3"] for p in pairs])
     smp = np.array([p["sample_error_m3"] for p in pairs])
+    off = np.array([p["offset_error_m3"] for p in pairs])
+    for p in pairs:  # the two stated shared-offset terms together
+        b = p["budget_m3"]
+        p["sigma_offsets_m3"] = float(
+            np.hypot(b.get("shared_offset_before", 0.0), b.get("shared_offset_after", 0.0))
+        )
     return z_rows(
         pairs,
         (
@@ -194,5 +201,6 @@ def summarize_chain(pairs: list[dict]) -> list[dict]:
             ("GP + along-track, realised offsets removed", "sigma_gp_along_m3", rel),
             ("samples' relative errors u^T r, independent", "sigma_sample_indep_m3", smp),
             ("samples' relative errors u^T r, + along-track", "sigma_sample_along_m3", smp),
+            ("realised offsets' effect, shared-offset terms", "sigma_offsets_m3", off),
         ),
     )

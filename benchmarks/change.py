@@ -1,8 +1,8 @@
 """Glacier change: co-registration against xDEM, the volume-change 1-sigma by Monte Carlo, and
 the time of a 1 m change map.
 
-Four parts, one JSON each run (``benchmarks/results/change.json``; the chain part is run on its
-own into ``benchmarks/results/change_chain.json``):
+Parts, one JSON each run (``benchmarks/results/change.json``; the calibration and the chain
+parts are run on their own, JSON files below):
 
 ``coreg``  Two copies of a real DEM (the olinda-shaped 640 m site of scripts/real_dems.py at
            1 m, sampled on two 2 m lattices 3 m east / 2 m north apart, +1 m vertical, with
@@ -14,15 +14,24 @@ own into ``benchmarks/results/change_chain.json``):
            (default constructor), differenced, integrated over the glacier outline. The
            volume error over sigma_dV: glacimap (GP posterior + shared offsets) against the
            negative controls (per-cell independent sigma; the variogram of stable dh).
-``chain``  The Monte Carlo through the real chain on a smaller plan: each epoch simulated
-           (GPS with its Gauss-Markov bias, odometry, camera tracks), localized by iSAM2,
-           selected (Eq 7) and reconstructed as ``glacimap run`` does; no drawn offsets: the
-           surveys' offsets and along-track errors are what the localization leaves.
+``calib``  The along-track error model's calibration (benchmarks/_change_chain.py): surveys of
+           the chain plan with seeds disjoint from the Monte Carlo's, the realised relative
+           errors of the selected landmarks against the time lag, (fraction, tau) fitted.
+``chain``  The Monte Carlo through the real chain on a smaller plan (benchmarks/_change_chain.py):
+           each epoch simulated (GPS with its Gauss-Markov bias, odometry, camera tracks), with
+           4 ground-control corner stops (``--no-control``: none), localized by iSAM2,
+           selected and reconstructed as ``glacimap run`` does; no drawn offsets: the surveys'
+           offsets and along-track errors are what the localization leaves. sigma_dV with and
+           without the along-track term.
 ``speed``  ``difference`` + ``volume_change`` (GP route and variogram route) for two 600 m x
            600 m products at 1 m (the two reconstructions excluded, timed separately).
 
     python benchmarks/change.py --pairs 50 --out benchmarks/results/change.json
-    python benchmarks/change.py --parts chain --chain-pairs 20 \
+    python benchmarks/change.py --parts calib --calib-surveys 24 \
+        --out benchmarks/results/change_along_track_calib.json
+    python benchmarks/change.py --parts chain --chain-pairs 100 \
+        --out benchmarks/results/change_chain_control.json
+    python benchmarks/change.py --parts chain --chain-pairs 50 --no-control \
         --out benchmarks/results/change_chain.json
 """
 
@@ -265,7 +274,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=50)
     ap.add_argument(
-        "--parts", default="coreg,mc,speed", help="coreg, mc, calib, calib-pool, chain, speed"
+        "--parts",
+        default="coreg,mc,speed",
+        help="coreg, mc, calib, calib-pool, chain, chain-summary, speed",
     )
     ap.add_argument("--chain-pairs", type=int, default=20)
     ap.add_argument("--chain-seed0", type=int, default=0, help="first pair seed of the chain")
@@ -315,6 +326,20 @@ def main() -> None:
         cols += [("rms_error_m3", "rms err m3", ".0f"), ("z_mean", "z mean", "+.2f")]
         cols += [("z_spread", "z spread", ".2f"), ("coverage_95", "in 95%", ".2f")]
         print(table(summary, cols))
+    if "chain-summary" in parts:  # recompute the summary of an earlier chain run (its --out)
+        import json
+
+        from _change_chain import summarize_chain
+
+        payload = json.loads(args.out.read_text())
+        block = payload["chain_monte_carlo"]
+        block["summary"] = summarize_chain(block["pairs"])
+        for r in block["summary"]:
+            print(
+                f"{r['method']:48s} {r['n']:3d} {r['median_sigma_m3']:8.0f} "
+                f"{r['rms_error_m3']:8.0f} {r['z_mean']:+.2f} {r['z_spread']:.2f} "
+                f"{r['coverage_95']:.2f}"
+            )
     if "calib-pool" in parts:  # re-pool the epochs of an earlier calib run (its --out JSON)
         import json
 

@@ -12,9 +12,11 @@ vertical error (the shared offset removed) is ``e_i = a(t_i) s_i + b_i`` with
 
 * ``a`` a unit-variance OU process in time: ``cov(a(t), a(t')) = exp(-|t - t'| / tau)``,
 * ``s_i = sqrt(fraction) sigma_i``, ``sigma_i`` the sample's relative vertical 1-sigma,
-* ``b_i`` independent, variance ``(1 - fraction) sigma_i^2``,
+* ``b_i`` independent, variance ``(1 - fraction) sigma_i^2`` (none when ``fraction >= 1``:
+  the measured fraction is relative to the *stated* variance and exceeds 1 when the
+  realised errors are larger than stated),
 
-so that ``var(e_i) = sigma_i^2`` as the localization states it and, for ``i != j``,
+so that ``var(e_i) = max(fraction, 1) sigma_i^2`` and, for ``i != j``,
 ``C_ij = s_i s_j exp(-|t_i - t_j| / tau)``. For a linear estimator ``I_hat = u^T y`` the
 along-track part adds ``u^T C u - sum_i u_i^2 s_i^2`` to the variance the independent-noise
 model gives (its diagonal is already in ``z_var``).
@@ -74,9 +76,19 @@ class AlongTrackModel:
     def __post_init__(self) -> None:
         f, tau = float(self.fraction), float(self.tau_s)
         if not (np.isfinite(f) and f >= 0.0):
-            raise bad_input("along_track.fraction", self.fraction, "a finite number >= 0", "")
+            raise bad_input(
+                "along_track.fraction",
+                self.fraction,
+                "a finite number >= 0 (along-track over stated variance)",
+                f"use the measured default {ALONG_TRACK_FRACTION}",
+            )
         if not (tau > 0):
-            raise bad_input("along_track.tau_s", self.tau_s, "a time constant > 0 (s)", "")
+            raise bad_input(
+                "along_track.tau_s",
+                self.tau_s,
+                "a time constant > 0 (s)",
+                f"use the measured default {ALONG_TRACK_TAU_S}",
+            )
 
     def to_dict(self) -> dict[str, float]:
         return {"fraction": float(self.fraction), "tau_s": float(self.tau_s)}
@@ -134,7 +146,7 @@ def along_track_quadratic(
     if t.ndim != 1 or s.ndim != 1:
         raise bad_input("t_s / sigma_m", (t.shape, s.shape), f"shape ({n},)", "one per sample")
     if (s < 0).any():
-        raise bad_input("sigma_m", float(s.min()), "1-sigmas >= 0 (m)", "")
+        raise bad_input("sigma_m", float(s.min()), "1-sigmas >= 0 (m)", "pass standard deviations")
     tau = float(tau_s)
     if not tau > 0:
         raise bad_input("tau_s", tau_s, "a correlation time > 0 (s)", "e.g. 60.0")
@@ -228,7 +240,10 @@ def fit_along_track(
     lag, c, w = np.asarray(lag_s)[ok], np.asarray(corr)[ok], np.asarray(pairs)[ok]
     if lag.size < 3 or lag[1] >= short_lag_s:
         raise bad_input(
-            "lag_s", lag[:2].tolist(), f"two bins below {short_lag_s} s and one more", ""
+            "lag_s",
+            lag[:2].tolist(),
+            f"two bins below {short_lag_s} s and one more",
+            "use finer lag bins near 0",
         )
     # the correlation at lag 0+: the first two bins extrapolated linearly to 0
     frac = float(c[0] + (c[0] - c[1]) * lag[0] / (lag[1] - lag[0]))
@@ -236,7 +251,12 @@ def fit_along_track(
     # between bins): exact for the OU model, and insensitive to the noisy long-lag tail
     below = np.flatnonzero(c <= frac / np.e)
     if below.size == 0 or below[0] == 0:
-        raise bad_input("corr", c.tolist(), "a correlation that decays below fraction / e", "")
+        raise bad_input(
+            "corr",
+            c.tolist(),
+            "a correlation that decays below fraction / e",
+            "extend the lag bins (or pool more surveys)",
+        )
     j = int(below[0])
     efold = float(lag[j - 1] + (lag[j] - lag[j - 1]) * (c[j - 1] - frac / np.e) / (c[j - 1] - c[j]))
     # the integral time scale to the first zero crossing, for reference
