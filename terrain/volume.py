@@ -20,6 +20,14 @@ cell area). Its error variance, by source (all independent):
   mean has a fitted constant: the whole map moves). Variance ``(sigma_o u^T 1)^2`` per survey;
   ``sigma_o`` from the product attribute ``shared_vertical_offset_std_m`` (what
   ``glacimap run`` writes) or the ``shared_offset_std`` argument.
+* **Along-track correlated error** of each survey's samples (:mod:`terrain.along_track`):
+  the GP takes each sample's ``z_var`` as independent, but samples seen in the same minutes
+  share their trajectory error. With ``u`` the estimator's sample weights (``I_hat = u^T z``,
+  ``u = (K+N)^-1 (v + H cov(beta) R)``), the variance it misses is
+  ``u^T C u - sum_i u_i^2 s_i^2`` with ``C_ij = s_i s_j exp(-|t_i - t_j| / tau)``,
+  ``s_i^2 = fraction z_var_i`` and ``t_i`` the sample's observation time
+  (``samples.extra["t_s"]``); without times it is stated as not available. For a tiled GP,
+  ``u`` is the subset GP's (an approximation, like its posterior term).
 * **Co-registration**: when ``dh`` was co-registered, the relative vertical bias was estimated
   on stable ground; the shared offsets are replaced by that estimate's 1-sigma times the area.
 * **Variogram** (any other DEM pair, the fallback): :mod:`terrain.variogram` on stable dh.
