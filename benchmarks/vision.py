@@ -441,6 +441,8 @@ def case_scale(density: float, seed: int, swaths: int = 4) -> dict[str, Any]:
         "online_step_max_s": float(step.max()),
         "online_last100_s": float(step[-100:].sum()),
         "rebuilds": int(loc.n_rebuilds),
+        # what kept the online pass alive, by kind (factorgraph/rebuild.py: OnlineGuard)
+        "isam2_recovery": dict(loc.refine.get("isam2_recovery", {})),
         "after_online_s": after_s,
         "refine_s": float(loc.refine.get("seconds", 0.0)),
         "retry_s": float(loc.refine.get("retry_seconds", 0.0)),

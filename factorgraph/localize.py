@@ -25,7 +25,7 @@ from .control import ControlPoints, add_control_factors, control_report, plan_co
 from .factors import biased_gps_factor, drift_odometry_factor, gauss_markov_factor, gm_transition
 from .field.gate import gate_log
 from .log import MeasurementLog
-from .rebuild import rebuild_isam, without_keys
+from .rebuild import OnlineGuard, rebuild_isam, without_keys
 from .result import LocalizationResult
 from .track_init import retry_failed_tracks
 from .track_init import triangulate_track as _triangulate
@@ -263,6 +263,9 @@ def localize(
     LocalizationResult
         Final (smoothed) and online poses, landmarks with full 3x3 marginal covariances at the
         final estimate, the shared GPS-offset covariance, per-step timings and drop counts.
+        ``refine["isam2_recovery"]`` (with the refinement on) counts what kept the online
+        pass alive by kind (:class:`factorgraph.rebuild.OnlineGuard`): views deferred to the
+        batch refinement, landmarks postponed, rebuilds and the landmarks they dropped.
     """
     import gtsam
 
@@ -296,6 +299,7 @@ def localize(
     isam_params = _isam_params(params)
     isam = gtsam.ISAM2(isam_params)
     history = gtsam.NonlinearFactorGraph()  # every factor added so far (for a rebuild)
+    guard = OnlineGuard(bTc, params.min_depth_m)  # views unsafe to linearize online (rebuild.py)
 
     gps_row = {int(k): i for i, k in enumerate(log.gps_k)}
     order = np.argsort(log.obs_k, kind="stable")
@@ -306,7 +310,6 @@ def localize(
     poses: dict[int, Any] = {}
     fresh: dict[int, int] = {}
     bias_prev, drift_prev = np.zeros(3), np.zeros(2)
-    n_rebuilds = 0
     step_s = np.zeros(log.n_keyframes)
     online = np.zeros((log.n_keyframes, 3))
 
@@ -368,6 +371,7 @@ def localize(
                 graph.add(gtsam.GPSFactor(X(k), z, gtsam.noiseModel.Diagonal.Sigmas(w)))
         poses[k] = guess
         if params.use_landmarks:
+            lin = isam.getLinearizationPoint()  # a view into iSAM2's theta, not a copy
             idx = order[bounds[k] : bounds[k + 1]]
             seen_now = set()
             for i in idx:
@@ -376,9 +380,8 @@ def localize(
                 if lid in tracks.banned:
                     continue
                 if lid in tracks.active:
-                    graph.add(
-                        gtsam.GenericProjectionFactorCal3_S2(uv, pix_noise, X(k), L(lid), K, bTc)
-                    )
+                    f = gtsam.GenericProjectionFactorCal3_S2(uv, pix_noise, X(k), L(lid), K, bTc)
+                    guard.view(f, guess, lin.atPoint3(L(lid)), graph)
                     continue
                 tracks.pending.setdefault(lid, []).append((k, uv))
                 views = tracks.pending[lid]
@@ -389,6 +392,10 @@ def localize(
                     if kv < k and fresh.get(kv) != k:
                         poses[kv], fresh[kv] = isam.calculateEstimatePose3(X(kv)), k
                 pt, why = _triangulate(views, poses, camera, bTc, K, params)
+                if pt is not None and not guard.new_landmark_ok(
+                    pt, [guess if kv == k else lin.atPose3(X(kv)) for kv, _ in views]
+                ):  # at the poses' linearization points: wait for a view or the retry
+                    pt, why = None, "depth_at_linearization_point"
                 tracks.last_try[lid] = why
                 if pt is None:
                     continue
@@ -418,7 +425,8 @@ def localize(
             isam, history, lost = rebuild_isam(
                 isam, isam_params, history, graph, values, new_lids, k, exc
             )
-            n_rebuilds += 1
+            guard.counts["rebuilds"] += 1
+            guard.counts["rebuild_dropped_landmarks"] += len(lost)
             for lid in lost:
                 tracks.active.discard(lid)
                 tracks.banned.add(lid)
@@ -438,6 +446,7 @@ def localize(
         add_control_factors(ctrl_plan, isam, history, tracks.active)
     estimate = isam.calculateEstimate()
     graph = history
+    graph.push_back(guard.deferred)  # linearized at the refined estimate from here on
     refine_report, retry = None, {}
     if params.refine:
         estimate, refine_report = refine_estimate(
@@ -455,6 +464,9 @@ def localize(
         graph, estimate, log.n_keyframes, sorted(tracks.active), bias_model, drift_model
     )
     marginal_s = time.perf_counter() - t0
+    report = {**refine_report.as_dict(), **retry} if refine_report is not None else {}
+    if report:  # views deferred, landmarks postponed, rebuilds (rebuild.py); with refine off
+        report["isam2_recovery"] = guard.report()  # only n_rebuilds (result.py has no field)
     result = LocalizationResult.build(
         log=log,
         params=params,
@@ -463,10 +475,10 @@ def localize(
         marginals=marg,
         tracks=tracks,
         online_xyz=online,
-        n_rebuilds=n_rebuilds,
+        n_rebuilds=guard.counts["rebuilds"],
         step_s=step_s,
         marginal_s=marginal_s,
-        refine={**refine_report.as_dict(), **retry} if refine_report is not None else {},
+        refine=report,
     )
     if ctrl_plan is not None:
         result.control = control_report(ctrl_plan, result)
