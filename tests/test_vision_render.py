@@ -7,7 +7,7 @@ import pytest
 
 from factorgraph.sensors import CameraModel
 from factorgraph.vision import SCENES, AlbedoParams, GlacierAlbedo, Renderer, Scene
-from factorgraph.vision.albedo import pyramid, sample_pyramid
+from factorgraph.vision.albedo import MipAtlas, _bilinear, pyramid, sample_pyramid
 from terrain.errors import InputError
 from terrain.grid import Grid
 
@@ -100,6 +100,36 @@ def test_pyramid_lookup_exact_at_texels_and_mean_at_coarsest():
     coarsest = lev[-1]
     assert top.min() >= coarsest.min() - 1e-5 and top.max() <= coarsest.max() + 1e-5
     assert abs(coarsest.mean() - tile.mean()) < 1e-5  # 2x2 means preserve the mean
+
+
+def test_atlas_lookup_equals_each_pyramid_looked_up_alone():
+    """The fused lookup (both detail tiles in one atlas, one remap) gives, per tile and
+    level, the plain bilinear lookup of that level: no bleeding between tiles or levels,
+    periodic wrap across the tile edge, trilinear blend between two levels."""
+    rng = np.random.default_rng(3)
+    tiles = [pyramid(rng.normal(size=(64, 64, 3)).astype(np.float32), True) for _ in range(2)]
+    atlas = MipAtlas(tiles, periodic=True)
+    x = rng.uniform(-200, 200, 500)
+    y = rng.uniform(-200, 200, 500)
+    for lev in (0, 2, 5):
+        got = atlas.sample([(x, y, np.full(500, float(lev)))] * 2)
+        s = 0.5**lev
+        for t in range(2):
+            want = _bilinear(tiles[t][lev], (x + 0.5) * s - 0.5, (y + 0.5) * s - 0.5, True)
+            # float32 atlas coordinates: ~1e-4 texel, values of std 1 per texel
+            np.testing.assert_allclose(got[t], want, atol=5e-4)
+    half = atlas.sample([(x, y, np.full(500, 1.5))])[0]
+    a0, a1 = (atlas.sample([(x, y, np.full(500, v))])[0] for v in (1.0, 2.0))
+    np.testing.assert_allclose(half, 0.5 * (a0 + a1), atol=1e-5)
+
+
+def test_clamped_atlas_returns_the_edge_texel_far_outside():
+    rng = np.random.default_rng(4)
+    base = rng.uniform(size=(30, 50, 2)).astype(np.float32)
+    atlas = MipAtlas([pyramid(base, periodic=False)], periodic=False)
+    x, y = np.array([-1e4, 1e4, 20.0]), np.array([5.0, 29.0, -3e3])
+    got = atlas.sample([(x, y, np.zeros(3))])[0]
+    np.testing.assert_allclose(got, base[[5, 29, 0], [0, 49, 20]], atol=1e-6)
 
 
 def test_albedo_is_seeded_bounded_and_darker_on_dirt():

@@ -24,7 +24,7 @@ import numpy as np
 
 from terrain.errors import bad_input
 
-__all__ = ["AlbedoParams", "GlacierAlbedo", "pyramid", "sample_pyramid"]
+__all__ = ["AlbedoParams", "GlacierAlbedo", "MipAtlas", "pyramid", "sample_pyramid"]
 
 
 @dataclass(frozen=True)
@@ -72,57 +72,139 @@ def pyramid(img: np.ndarray, periodic: bool, min_size: int = 2) -> list[np.ndarr
 def _bilinear(a: np.ndarray, x: np.ndarray, y: np.ndarray, periodic: bool) -> np.ndarray:
     """``a`` (h, w[, c]) at fractional texel coordinates (x along columns, y along rows, texel
     centres at integers); wrapped when ``periodic``, clamped otherwise. OpenCV ``remap``
-    (bilinear, 1/32-texel weights)."""
-    import cv2
-
+    (bilinear; OpenCV 5 interpolates at the float32 coordinate, no 1/32-texel table)."""
     h, w = a.shape[:2]
     if periodic:  # keep float32 coordinates small; remap wraps the last texel
         x, y = np.mod(x, w), np.mod(y, h)
+    import cv2
+
+    return _remap(a, x, y, cv2.BORDER_WRAP if periodic else cv2.BORDER_REPLICATE)
+
+
+def _remap(a: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
+    """``cv2.remap`` (bilinear) of ``a`` (h, w[, c]) at the flat coordinates ``x, y`` (n,):
+    (n,) or (n, c) float32. The points are laid out 1024 to a row (remap's maps must stay
+    under 32767 a side)."""
+    import cv2
+
     n = np.size(x)
+    if n == 0:
+        return np.zeros((0,) + a.shape[2:], np.float32)
     cols = 1024
     rows = -(-n // cols)
     mx = np.zeros(rows * cols, np.float32)
     my = np.zeros(rows * cols, np.float32)
     mx[:n], my[:n] = np.ravel(x), np.ravel(y)
-    border = cv2.BORDER_WRAP if periodic else cv2.BORDER_REPLICATE
-    if n == 0:
-        return np.zeros((0,) + a.shape[2:], np.float32)
     out = cv2.remap(
         a, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=border
     )
-    out = out.reshape((rows * cols,) + a.shape[2:])[:n]
-    return out
+    return out.reshape((rows * cols,) + a.shape[2:])[:n]
+
+
+class MipAtlas:
+    """Mip pyramids (lists of (h, w[, c]) float32 levels, :func:`pyramid`) packed into one
+    array, so that a trilinear lookup of every pyramid at every level is one ``cv2.remap``.
+
+    Layout per pyramid (a block of rows): level 0 at the left, levels 1... stacked in a
+    column to its right, every level framed by ``PAD`` texels: copies of the opposite edge
+    (``periodic``) or of the nearest edge (clamped), so that a bilinear lookup never reads
+    a neighbouring level. Lookup coordinates are wrapped (periodic) or clamped at level 0,
+    once per point; each level's coordinate is then ``x * 2^-j + offset_j``. All pyramids
+    must have the same level shapes and channels.
+    """
+
+    PAD = 2  # odd sizes lose a texel per level (pyramid() crops): 2 covers the drift
+
+    def __init__(self, pyramids: list[list[np.ndarray]], periodic: bool):
+        self.periodic = periodic
+        self.flat = pyramids[0][0].ndim == 2
+        pyramids = [[a[..., None] if self.flat else a for a in lev] for lev in pyramids]
+        shapes = [[a.shape[:2] for a in lev] for lev in pyramids]
+        if any(sh != shapes[0] for sh in shapes):
+            raise bad_input("pyramids", "level shapes differ", "pyramids of one shape", "")
+        P = self.PAD
+        hs = np.array([h for h, _ in shapes[0]], np.int64) + 2 * P  # framed sizes
+        ws = np.array([w for _, w in shapes[0]], np.int64) + 2 * P
+        n = len(hs)
+        col = np.where(np.arange(n) == 0, 0, ws[0])
+        row = np.concatenate([[0, 0], np.cumsum(hs[1:])[:-1]])[:n]
+        block = max(int(hs[0]), int(row[-1] + hs[-1]))
+        width = int(ws[0] + (ws[1] if n > 1 else 0))
+        self.atlas = np.zeros((block * len(pyramids), width, pyramids[0][0].shape[2]), np.float32)
+        mode = "wrap" if periodic else "edge"
+        for t, levels in enumerate(pyramids):
+            for j, a in enumerate(levels):
+                a = np.pad(a, ((P, P), (P, P), (0, 0)), mode=mode)
+                r0 = t * block + row[j]
+                self.atlas[r0 : r0 + a.shape[0], col[j] : col[j] + a.shape[1]] = a
+        self.n_levels, self.block = n, block
+        self.w0, self.h0 = float(shapes[0][0][1]), float(shapes[0][0][0])
+        scale = np.ldexp(1.0, -np.arange(n))
+        self.scale = scale.astype(np.float32)
+        # level-j coordinate = (x + 0.5) 2^-j - 0.5 + frame + level origin in the atlas
+        self.off_x = (0.5 * scale - 0.5 + P + col).astype(np.float32)
+        self.off_y = [
+            (0.5 * scale - 0.5 + P + row + t * block).astype(np.float32)
+            for t in range(len(pyramids))
+        ]
+
+    def sample(self, lookups) -> list[np.ndarray]:
+        """Trilinear lookups: ``lookups`` holds per pyramid ``(x, y, lod)``, texel coordinates
+        at level 0 (n,) and level of detail (log2 of the footprint in texels, >= 0). Returns
+        per pyramid (n,) or (n, c) float32."""
+        import cv2
+
+        total = 2 * sum(np.size(x) for x, _, _ in lookups)
+        cols = 1024  # remap's maps must stay under 32767 a side
+        rows = max(-(-total // cols), 1)
+        mx = np.zeros(rows * cols, np.float32)
+        my = np.zeros(rows * cols, np.float32)
+        fracs, at = [], 0
+        for t, (x, y, lod) in enumerate(lookups):
+            x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+            if self.periodic:  # reduced in float64: float32 then keeps 1/32768 of a texel
+                x = x - np.floor(x * (1.0 / self.w0)) * self.w0  # np.mod, 6x faster
+                y = y - np.floor(y * (1.0 / self.h0)) * self.h0
+            else:  # clamped at level 0 = the edge texel of every level (the frame)
+                x, y = np.clip(x, 0.0, self.w0 - 1.0), np.clip(y, 0.0, self.h0 - 1.0)
+            x, y = x.astype(np.float32), y.astype(np.float32)
+            lod = np.clip(lod, 0.0, self.n_levels - 1.001)
+            l0 = lod.astype(np.intp)  # floor: lod >= 0
+            fracs.append((lod - l0).astype(np.float32))
+            for j in (l0, l0 + 1):
+                sl = slice(at, at + x.size)
+                s = self.scale[j]
+                np.multiply(x, s, out=mx[sl])
+                mx[sl] += self.off_x[j]
+                np.multiply(y, s, out=my[sl])
+                my[sl] += self.off_y[t][j]
+                at += x.size
+        v = cv2.remap(
+            self.atlas,
+            mx.reshape(rows, cols),
+            my.reshape(rows, cols),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        ).reshape(rows * cols, -1)
+        out, at = [], 0
+        for (x, _, _), f in zip(lookups, fracs, strict=True):
+            n = np.size(x)
+            v0, v1 = v[at : at + n], v[at + n : at + 2 * n]
+            res = v1 - v0  # v0 (1 - f) + v1 f, in place
+            res *= f[:, None]
+            res += v0
+            out.append(res[:, 0] if self.flat else res)
+            at += 2 * n
+        return out
 
 
 def sample_pyramid(
     levels: list[np.ndarray], x: np.ndarray, y: np.ndarray, lod: np.ndarray, periodic: bool
 ) -> np.ndarray:
     """Trilinear lookup: texel coordinates ``x, y`` (level 0) at level of detail ``lod``
-    (log2 of the footprint in texels, >= 0). Returns (n,) or (n, c)."""
-    lod = np.clip(lod, 0.0, len(levels) - 1.001)
-    l0 = np.floor(lod).astype(np.int64)
-    frac = (lod - l0).astype(np.float32)
-    shape = (x.size,) + levels[0].shape[2:]
-    out = np.empty(shape, np.float32)
-    # group the points by level once (a stable sort), then contiguous slices per level: one
-    # pass instead of a full-length mask per level (same values, point for point)
-    order = np.argsort(l0, kind="stable")
-    xo, yo, fo = x[order], y[order], frac[order]
-    ends = np.cumsum(np.bincount(l0, minlength=len(levels)))
-    start = 0
-    for lev, end in enumerate(ends):
-        if end == start:
-            continue
-        sl = slice(start, end)
-        vals = []
-        for j in (lev, lev + 1):
-            s = 0.5**j
-            xs, ys = (xo[sl] + 0.5) * s - 0.5, (yo[sl] + 0.5) * s - 0.5
-            vals.append(_bilinear(levels[j], xs, ys, periodic))
-        f = fo[sl] if out.ndim == 1 else fo[sl][:, None]
-        out[order[sl]] = vals[0] * (1 - f) + vals[1] * f
-        start = end
-    return out
+    (log2 of the footprint in texels, >= 0). Returns (n,) or (n, c). (One pyramid through
+    :class:`MipAtlas`; build the atlas once to look up many times.)"""
+    return MipAtlas([levels], periodic).sample([(x, y, lod)])[0]
 
 
 def _periodic_noise(rng, n, texel, lam_lo, lam_hi, aniso=1.0, azimuth_deg=0.0, beta=2.0):
@@ -163,8 +245,8 @@ class GlacierAlbedo:
         cell = max(p.base_cell_m, max(e - w, n - s) / 4096.0)  # at most 4096 cells a side
         self.cell, self.x0, self.y0 = cell, w, s
         nx, ny = int(math.ceil((e - w) / cell)) + 1, int(math.ceil((n - s) / cell)) + 1
-        self.base = pyramid(self._base(rng, nx, ny, cell), periodic=False)
-        self.tiles = []
+        self.base = MipAtlas([pyramid(self._base(rng, nx, ny, cell), periodic=False)], False)
+        self.tiles, tile_levels = [], []
         for texel, rot in ((0.015, 0.0), (0.061, 37.0)):
             grain, _ = _periodic_noise(rng, self.TILE, texel, 2 * texel, 40 * texel, beta=1.0)
             h, slope = _periodic_noise(
@@ -178,7 +260,10 @@ class GlacierAlbedo:
             )
             amp = p.sastrugi_height_m / math.sqrt(2.0)
             c = np.concatenate([grain[..., None], slope * amp], axis=-1)
-            self.tiles.append((texel, math.radians(rot), pyramid(c, periodic=True)))
+            self.tiles.append((texel, math.radians(rot)))
+            tile_levels.append(pyramid(c, periodic=True))
+        # both tiles in one atlas: one remap for every level of both (docs/vision.md)
+        self.tile_atlas = MipAtlas(tile_levels, periodic=True)
 
     def _base(self, rng, nx, ny, cell) -> np.ndarray:
         """Zones (snow / firn / ice), dirt cones and rocks on the site raster (ny, nx, 2):
@@ -224,21 +309,26 @@ class GlacierAlbedo:
         """Albedo (n,) and micro-relief slopes (n, 2) at local ground points ``x, y`` (m),
         each filtered over ``footprint`` (m, the pixel's size on the ground)."""
         p = self.params
-        fp = np.maximum(footprint, 1e-6)
-        base = sample_pyramid(
-            self.base,
-            (x - self.x0) / self.cell,
-            (y - self.y0) / self.cell,
-            np.log2(np.maximum(fp / self.cell, 1.0)),
-            periodic=False,
+        log_fp = np.log2(np.maximum(footprint, 1e-6))  # lod = log2(footprint / texel) >= 0
+        (base,) = self.base.sample(
+            [
+                (
+                    (x - self.x0) / self.cell,
+                    (y - self.y0) / self.cell,
+                    np.maximum(log_fp - math.log2(self.cell), 0.0),
+                )
+            ]
         )
         albedo, bare = base[:, 0], base[:, 1]
-        grain = np.zeros_like(albedo)
-        slope = np.zeros((x.size, 2), np.float32)
-        for texel, rot, levels in self.tiles:
+        lookups = []
+        for texel, rot in self.tiles:
             c, s = math.cos(rot), math.sin(rot)
             tx, ty = (c * x + s * y) / texel, (-s * x + c * y) / texel
-            v = sample_pyramid(levels, tx, ty, np.log2(np.maximum(fp / texel, 1.0)), True)
+            lookups.append((tx, ty, np.maximum(log_fp - math.log2(texel), 0.0)))
+        grain = np.zeros_like(albedo)
+        slope = np.zeros((x.size, 2), np.float32)
+        for (_, rot), v in zip(self.tiles, self.tile_atlas.sample(lookups), strict=True):
+            c, s = math.cos(rot), math.sin(rot)
             grain += v[:, 0]
             sl = v[:, 1:3]  # slopes in the tile frame -> rotate back to east / north
             slope[:, 0] += c * sl[:, 0] - s * sl[:, 1]

@@ -147,6 +147,8 @@ class Renderer:
         a, el = math.radians(sc.sun_azimuth_deg), math.radians(sc.sun_elevation_deg)
         self.sun = np.array([math.sin(a) * math.cos(el), math.cos(a) * math.cos(el), math.sin(el)])
         self._vis = self._sun_visibility(z)
+        # what the shading looks up per pixel, in one 4-channel raster (one remap per frame)
+        self._shade = np.dstack([self._normal[..., :2], self._ao, self._vis]).astype(np.float32)
         self.albedo = GlacierAlbedo(area, sc.albedo, rng)
         cam = camera
         u, v = np.meshgrid(np.arange(cam.width_px) + 0.0, np.arange(cam.height_px) + 0.0)
@@ -226,19 +228,24 @@ class Renderer:
         # sky: brighter toward the horizon; overcast sky and snow nearly the same
         elev = np.clip(d[~hit, 2], 0, 1)
         img[~hit] = self.gain * (sc.sky_irradiance + 0.6 * sc.sun_irradiance) * (1 - 0.3 * elev)
-        th = t[hit]
-        p = np.asarray(c, float) + d[hit] * th[:, None]
-        n0 = self._raster(self._normal, p[:, 0], p[:, 1])
-        cos_inc = np.abs((d[hit] * n0).sum(1))
+        th, dh = t[hit], d[hit]
+        p = np.asarray(c, float) + dh * th[:, None]
+        # one 4-channel lookup: normal (x, y), concavity, sun visibility; n_z = the unit
+        # normal's third component (DEM normals point up)
+        shade = self._raster(self._shade, p[:, 0], p[:, 1])
+        n0 = np.empty((th.size, 3), np.float32)
+        n0[:, :2] = shade[:, :2]
+        n0[:, 2] = np.sqrt(np.maximum(1.0 - shade[:, 0] ** 2 - shade[:, 1] ** 2, 0.0))
+        cos_inc = np.abs(np.einsum("ij,ij->i", dh, n0))
         fp = th / cam.fx_px / np.sqrt(np.maximum(cos_inc, 0.05))
         alb, slope = self.albedo.sample(p[:, 0], p[:, 1], fp)
-        n = n0.copy()
+        n = n0
         n[:, :2] -= slope
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
-        sun = sc.sun_irradiance * np.clip(n @ self.sun, 0, None)
+        n /= np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
+        sun = sc.sun_irradiance * np.clip(n @ self.sun.astype(np.float32), 0, None)
         if sc.sun_irradiance:
-            sun *= self._raster(self._vis, p[:, 0], p[:, 1])
-        sky = sc.sky_irradiance * 0.5 * (1 + n[:, 2]) * self._raster(self._ao, p[:, 0], p[:, 1])
+            sun *= shade[:, 3]
+        sky = sc.sky_irradiance * 0.5 * (1 + n[:, 2]) * shade[:, 2]
         haze = np.exp(-th / sc.haze_m)
         img[hit] = self.gain * (alb * (sun + sky) * haze + sc.sky_irradiance * (1 - haze))
         return img.reshape(cam.height_px, cam.width_px)
