@@ -510,10 +510,12 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vision.json"))
     args = ap.parse_args()
     results: dict[str, Any] = {}
+    kept: dict[str, Any] = {}  # the file's other entries (notes, CLI timings) stay
     if args.out.exists():
         import json
 
-        results = json.loads(args.out.read_text()).get("cases", {})
+        kept = json.loads(args.out.read_text())
+        results = kept.pop("cases", {})
     for case in args.cases:
         if case.startswith("scale"):  # e.g. scale1.5: ideal tracks at 1.5 points / m^2
             res = in_subprocess(case_scale, float(case[5:]), args.seed)
@@ -561,7 +563,7 @@ def main() -> None:
             cols = CHAIN_COLS
         print(table(res["rows"], cols), flush=True)
         results[case] = res
-        write_json(args.out, {"cases": results, "command": " ".join(sys.argv)})
+        write_json(args.out, {**kept, "cases": results, "command": " ".join(sys.argv)})
 
 
 if __name__ == "__main__":
