@@ -21,6 +21,35 @@ def test_correlated_variance_is_the_median_of_the_nearest():
     assert correlated_variance(q, lm[:0], s[:0]).tolist() == [0.0] * 7
 
 
+def test_time_correlated_along_track_variance():
+    """Reference values by hand: the variance of the mean of k errors with covariance
+    f s_i s_j exp(-|t_i - t_j| / tau) (terrain.along_track's model) is
+    (1/k^2) sum_ij f s_i s_j exp(-|t_i - t_j| / tau)."""
+    from terrain.along_track import AlongTrackModel
+
+    lm = np.array([[0.0, 0.0], [1.0, 0.0]])
+    s = np.array([0.3, 0.5])
+    q = np.array([[0.5, 0.0]])
+    model = AlongTrackModel(fraction=0.9, tau_s=100.0)
+    # the same instant: fully shared, f (mean s)^2 = 0.9 * 0.4^2
+    same = correlated_variance(q, lm, s, k=2, landmark_t_s=np.array([5.0, 5.0]), model=model)
+    assert abs(same[0] - 0.9 * 0.4**2) < 1e-12
+    # 100 s apart: (0.09 + 0.25 + 2 * 0.15 * exp(-1)) / 4 * 0.9
+    apart = correlated_variance(q, lm, s, k=2, landmark_t_s=np.array([0.0, 100.0]), model=model)
+    assert abs(apart[0] - 0.9 * (0.09 + 0.25 + 0.3 * np.exp(-1.0)) / 4.0) < 1e-12
+    # far apart in time: only the diagonal, f mean(s^2) / k
+    far = correlated_variance(q, lm, s, k=2, landmark_t_s=np.array([0.0, 1e6]), model=model)
+    assert abs(far[0] - 0.9 * (0.09 + 0.25) / 4.0) < 1e-12
+    # never above the time-free upper bound's fully shared case for equal sigmas
+    rng = np.random.default_rng(3)
+    lm = rng.uniform(0, 100, (200, 2))
+    t = rng.uniform(0, 3600, 200)
+    s = np.full(200, 0.4)
+    qq = rng.uniform(0, 100, (50, 2))
+    timed = correlated_variance(qq, lm, s, k=10, landmark_t_s=t, model=model)
+    assert np.all(timed <= 0.9 * 0.16 + 1e-12) and np.all(timed >= 0.9 * 0.16 / 10 - 1e-12)
+
+
 def test_inflation_where_the_map_leans_on_data_only():
     """Among the samples the added variance is the along-track + shared variance (w ~ 1);
     far from them the map is the prior and keeps the GP's 1-sigma (w ~ 0)."""

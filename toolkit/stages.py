@@ -99,6 +99,7 @@ def reconstruct_stage(
     landmark_rel_z_std: np.ndarray | None = None,
     shared_z_std: float = 0.0,
     heldout_folds: int = 5,
+    landmark_t_s: np.ndarray | None = None,
 ) -> Reconstruction:
     """The GP map (the terrain layer's defaults: kernel by evidence) with its error budget.
 
@@ -122,6 +123,9 @@ def reconstruct_stage(
         1-sigma of the survey's map-wide vertical offset (m), stated once in the product.
     heldout_folds : int
         Spatial-block folds of :func:`terrain.cross_validate` (0: skip the held-out check).
+    landmark_t_s : ndarray, optional
+        The landmarks' mean observation times (s) for the along-track term's time
+        correlation; default: the samples' ``extra["t_s"]`` when ``landmark_xy`` is not given.
 
     Returns
     -------
@@ -141,7 +145,11 @@ def reconstruct_stage(
         seed=seed,
     ).fit(samples)
     if landmark_xy is None:
-        landmark_xy, landmark_rel_z_std = samples.xy, np.sqrt(samples.z_var)
+        landmark_xy = samples.xy
+        if landmark_rel_z_std is None:
+            landmark_rel_z_std = np.sqrt(samples.z_var)
+        if landmark_t_s is None:
+            landmark_t_s = samples.extra.get("t_s")
     from terrain.gp_mean import n_coef
 
     fitted_offset = n_coef(gp.mean_) > 0  # the prior's datum offset is fitted to the samples
@@ -152,6 +160,7 @@ def reconstruct_stage(
         landmark_rel_z_std,
         shared_z_std,
         shared_everywhere=fitted_offset,
+        landmark_t_s=landmark_t_s,
     )
     product.attrs.update(
         {
@@ -193,6 +202,7 @@ def reconstruct_selection(
         landmark_rel_z_std=sel.table["z_std_m"][kept],
         shared_z_std=float(sel.shared_offset_std_m[2]),
         heldout_folds=heldout_folds,
+        landmark_t_s=sel.table["t_s"][kept] if "t_s" in sel.table else None,
     )
 
 
