@@ -17,8 +17,8 @@ A failed
 Bayes tree when the elimination throws; whether a second update with
 ``removeFactorIndices`` leaves a consistent tree is not documented, so the recovery after
 a failure stays a rebuild from every factor (measured on that survey: 14 s at 190,000
-factors, 57 s at 240,000), and the steps after a rebuild were slower (its batch ordering:
-the last 100 steps took 38 s after a rebuild at keyframe 1,170, 15 s with the guard). The
+factors, 57 s at 240,000; the last 100 steps took 38 s after a rebuild at keyframe 1,170,
+15 s with the guard). The
 guard checks the depth of the landmark in each camera *at the linearization point* before
 the update: a view of an existing landmark that fails is deferred to the batch refinement
 (it joins the graph after the online pass, where every landmark is re-triangulated at the
