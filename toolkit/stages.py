@@ -278,6 +278,8 @@ def localization_summary(loc: LocalizationResult, sel: LandmarkSelection) -> dic
             "shared_offset_std_m": [float(v) for v in sel.shared_offset_std_m],
             "selection_counts": sel.counts,
             "isam2_rebuilds": loc.n_rebuilds,
+            # what kept the online pass going, by kind (factorgraph.rebuild.OnlineGuard)
+            "isam2_recovery": dict((loc.refine or {}).get("isam2_recovery", {})),
         }
     )
     # GPS records not used, by reason: the field reader's counts (factorgraph.field) and the
