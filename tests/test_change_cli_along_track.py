@@ -44,12 +44,17 @@ def timed_epochs(tmp_path_factory):
     return d, timed, outline, gpkg, (rec_b, rec_a), times
 
 
+def _volume(src, gpkg, out):
+    """``glacimap change`` on ``src`` (exit 0 required): its console and volume.json."""
+    res = _change(src, gpkg, out)
+    assert res.exit_code == 0, res.output
+    return res.output, json.loads((out / "volume.json").read_text())
+
+
 def test_cli_budget_has_the_along_track_terms(timed_epochs, tmp_path):
     d, timed, outline, gpkg, recs, times = timed_epochs
-    res = _change(timed, gpkg, tmp_path / "out")
-    assert res.exit_code == 0, res.output
-    assert "along-track term, before: included" in res.output
-    vol = json.loads((tmp_path / "out" / "volume.json").read_text())
+    output, vol = _volume(timed, gpkg, tmp_path / "out")
+    assert "along-track term, before: included" in output
     grid = Grid.from_bounds(DEFAULT_SITE_BOUNDS, 10.0)
     W = outline_weights(grid, outline)
     for name, rec in zip(("before", "after"), recs, strict=True):
@@ -70,10 +75,8 @@ def test_cli_budget_has_the_along_track_terms(timed_epochs, tmp_path):
 
 def test_cli_without_times_says_not_available(timed_epochs, tmp_path):
     d, timed, outline, gpkg, recs, times = timed_epochs
-    res = _change(d, gpkg, tmp_path / "out")
-    assert res.exit_code == 0, res.output
-    assert "along-track term, after: not available" in res.output
-    vol = json.loads((tmp_path / "out" / "volume.json").read_text())
+    output, vol = _volume(d, gpkg, tmp_path / "out")
+    assert "along-track term, after: not available" in output
     assert not any(k.startswith("along_track") for k in vol["budget_m3"])
     assert vol["details"]["along_track"]["after"]["status"].startswith("not available")
     assert "along-track term NOT in the 1-sigma" in vol["details"]["method_note"]
