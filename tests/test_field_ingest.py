@@ -172,9 +172,9 @@ def test_gpx_points_without_time_or_elevation_counted(log, tmp_path):
 def test_rtklib_unknown_header(log, tmp_path):
     folder = _folder(log, tmp_path, "rtklib")
     text = (folder / "gps.pos").read_text()
-    text = text.replace("latitude(deg) longitude(deg)  height(m)", "x-ecef(m) y-ecef(m) z-ecef(m)")
-    (folder / "gps.pos").write_text(text)
-    with pytest.raises(InputError, match=r"gps.pos header.*x-ecef"):
+    text = text.replace("latitude(deg) longitude(deg)  height(m)", "x(ft) y(ft) z(ft)")
+    (folder / "gps.pos").write_text(text)  # ECEF, ENU, d/m/s: tests/test_field_formats.py
+    with pytest.raises(InputError, match=r"gps.pos header.*x\(ft\)"):
         read_field_log(folder)
 
 
@@ -225,7 +225,7 @@ def test_empty_or_header_only_gps(log, tmp_path, fmt, text):
 def test_gga_without_date(log, tmp_path):
     folder = _folder(log, tmp_path)
     _write_lines(folder, [ln for ln in _nmea_lines(folder) if "RMC" not in ln])
-    with pytest.raises(InputError, match="RMC sentences in the log or gps.date"):
+    with pytest.raises(InputError, match="RMC or ZDA sentences in the log or gps.date"):
         read_field_log(folder)
     man = json.loads((folder / "survey.json").read_text())
     _manifest(folder, gps=dict(man["gps"], date="2026-07-01"))

@@ -26,6 +26,15 @@ UERE_M = {"single": 2.5, "dgps": 0.8, "rtk_float": 0.3, "rtk_fixed": 0.02, "ppp"
 #: Vertical over horizontal 1-sigma when the file states no vertical sigma (VDOP / HDOP is
 #: 1.5-2 for an open sky; the geometry of satellites above the horizon only).
 VERTICAL_FACTOR = 1.7
+#: What to do when every record of a GPS file was skipped for this reason.
+NO_FIX_HINTS = {
+    "no_elevation": "export the track with heights (GPX <ele>): the map's heights are the GPS "
+    "heights, a 2-D track cannot give them",
+    "no_time": "export the track with time stamps: fixes are matched to the odometry by time",
+    "no_solution": "the receiver had no position solution: check the antenna and the log",
+    "2d_fix_no_height": "log 3-D fixes: a 2-D fix has no height",
+    "unparseable_row": "check the file's format against docs/field-format.md",
+}
 
 
 def sigma_from_dop(kind: str, hdop: float, vdop: float | None, table: dict[str, float]) -> tuple:
@@ -80,11 +89,15 @@ class GPSFixes:
         """
         n_records = len(rows) + sum(skipped.values())
         if not rows:
+            main = skipped.most_common(1)[0][0] if skipped else ""
             raise bad_input(
                 source,
                 f"no usable position record ({n_records} read; skipped {dict(skipped)})",
                 "GPS fixes with a solution",
-                "check that the receiver logged positions (NMEA GGA, GPX trkpt, RTKLIB .pos)",
+                NO_FIX_HINTS.get(
+                    main,
+                    "check that the receiver logged positions (NMEA GGA, GPX trkpt, RTKLIB .pos)",
+                ),
             )
         kept: list[tuple] = []
         last = -math.inf

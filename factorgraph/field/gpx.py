@@ -1,5 +1,9 @@
 """GPX 1.0 / 1.1 tracks (``gpxpy``): every ``trkpt`` of every track segment is a fix.
 
+Track segments are read in the order of their first time stamp, not of the file: devices
+and editors write tracks newest first, or a merged file in any order; the points inside a
+segment keep their order (a time that goes back there is a clock glitch, counted).
+
 A point needs a ``time`` (UTC) and an ``ele``; ``hdop`` / ``vdop`` with the ``fix`` type give
 its 1-sigma (:func:`.fixes.sigma_from_dop`; ``fix`` absent counts as an autonomous fix, no
 hdop leaves the stated sensor model in charge). Counted, not fatal: points without time or
@@ -39,6 +43,12 @@ def _posix(t) -> float:
     return calendar.timegm(t.timetuple()[:6]) + t.microsecond * 1e-6
 
 
+def _first_time(points) -> float:
+    """UTC of a segment's first timed point (segments without times last)."""
+    times = [_posix(p.time) for p in points if p.time is not None]
+    return times[0] if times else math.inf
+
+
 def read_gpx(path: str | Path, sigma_table: dict[str, float] | None = None) -> GPSFixes:
     """Read the track points of a GPX file into :class:`.fixes.GPSFixes`."""
     import gpxpy
@@ -53,7 +63,8 @@ def read_gpx(path: str | Path, sigma_table: dict[str, float] | None = None) -> G
         doc = gpxpy.parse(text)
     except gpxpy.gpx.GPXException as exc:
         raise bad_input(path.name, str(exc)[:120], "a valid GPX file", "re-export it") from exc
-    points = [p for trk in doc.tracks for seg in trk.segments for p in seg.points]
+    segments = [seg.points for trk in doc.tracks for seg in trk.segments if seg.points]
+    points = [p for seg in sorted(segments, key=_first_time) for p in seg]
     if not points:
         what = f"{len(doc.tracks)} tracks, {len(doc.routes)} routes, {len(doc.waypoints)} waypoints"
         raise bad_input(

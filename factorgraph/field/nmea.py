@@ -2,8 +2,12 @@
 
 * ``GGA`` gives the time of day, latitude / longitude, fix quality, HDOP, altitude above
   the geoid and the geoid separation; the ellipsoidal height is ``altitude + separation``.
-* ``RMC`` gives the date (GGA has none); without RMC, ``gps.date`` in ``survey.json``.
-  A GGA time of day that falls back by more than 12 h rolls the date over to the next day.
+* ``RMC`` or ``ZDA`` gives the date (GGA has none); without either, ``gps.date`` in
+  ``survey.json``. A GGA time of day that falls back by more than 12 h rolls the date over
+  to the next day; GGA logged before the first dated sentence take its date, or the day
+  before when their time of day is more than 12 h after its (a log started before midnight).
+* A logger's prefix before the ``$`` (a time stamp, a channel name) is ignored: the
+  sentence starts at the first ``$`` of the line.
 * ``GST`` (optional) gives the receiver's own 1-sigma of latitude, longitude and altitude
   (m); when present for a fix it is used instead of the fix quality x HDOP table
   (:data:`.fixes.UERE_M`).
@@ -68,7 +72,7 @@ def read_nmea(
     path : path
         Text file of NMEA sentences, one per line.
     date : str, optional
-        UTC date ``YYYY-MM-DD`` of the first GGA when the log has no RMC sentences.
+        UTC date ``YYYY-MM-DD`` of the first GGA when the log has no RMC or ZDA sentences.
     sigma_table : dict, optional
         Per-axis 1-sigma at HDOP 1 by solution kind (default :data:`.fixes.UERE_M`).
     """
@@ -84,9 +88,10 @@ def read_nmea(
     n_dollar = 0
     sentences = []
     for ln in lines:
-        if not ln.startswith("$"):
+        if "$" not in ln:
             skipped["not_nmea_line"] += 1
             continue
+        ln = ln[ln.index("$") :]  # a logger's time stamp / channel prefix before the sentence
         n_dollar += 1
         if "*" not in ln:
             skipped["bad_checksum"] += 1
@@ -98,7 +103,13 @@ def read_nmea(
         except pynmea2.ParseError:
             skipped["unparseable_sentence"] += 1
     if n_dollar == 0:
-        raise bad_input(str(path.name), lines[0][:40], "NMEA sentences ($..*hh)", "")
+        raise bad_input(
+            str(path.name),
+            lines[0][:40],
+            "NMEA sentences ($..*hh)",
+            "export the receiver's NMEA log (GGA with RMC or ZDA), or name the GPS file's "
+            "format in survey.json gps.format",
+        )
     frac = skipped["bad_checksum"] / n_dollar
     if frac > MAX_BAD_CHECKSUM_FRACTION:
         raise bad_input(
@@ -123,11 +134,15 @@ def read_nmea(
     last_t = None
     for s in sentences:
         kind = s.sentence_type
-        if kind == "RMC" and s.datestamp is not None:
-            if day is None or s.datestamp != day:
-                day = s.datestamp
-            if pending:
-                rows.extend(_gga_row(g, day, gst, table, skipped) for g in pending)
+        if kind in ("RMC", "ZDA") and _date(s) is not None:
+            day = _date(s)
+            if pending:  # GGA before the first date: the same day, or the day before
+                for g in pending:
+                    ref = s.timestamp or g.timestamp
+                    before = _posix(day, g.timestamp) - _posix(day, ref) > 12 * 3600
+                    g_day = day - dt.timedelta(days=1) if before else day
+                    rows.append(_gga_row(g, g_day, gst, table, skipped))
+                    last_t = _posix(g_day, g.timestamp)
                 pending.clear()
             continue
         if kind != "GGA":
@@ -146,11 +161,19 @@ def read_nmea(
     if pending:
         raise bad_input(
             f"{path.name} date",
-            f"{len(pending)} GGA sentences and no RMC",
-            "a UTC date: RMC sentences in the log or gps.date in survey.json",
+            f"{len(pending)} GGA sentences and no RMC or ZDA",
+            "a UTC date: RMC or ZDA sentences in the log or gps.date in survey.json",
             'add "gps": {"date": "YYYY-MM-DD"} to survey.json',
         )
     return GPSFixes.collect([r for r in rows if r is not None], skipped, "nmea", path.name)
+
+
+def _date(s) -> dt.date | None:
+    """The UTC date of an RMC or ZDA sentence (None when empty or invalid)."""
+    try:
+        return s.datestamp
+    except (TypeError, ValueError):  # pynmea2 parses the fields lazily
+        return None
 
 
 def _gga_row(s, day, gst, table, skipped) -> tuple | None:

@@ -1,0 +1,229 @@
+"""GPS files as other tools write them (tried as a new user would, issue 17): RTKLIB in every
+solution format, NMEA from loggers and receivers without RMC, GPX tracks in any order.
+
+Each reader must give back the fixes the file was written from (to the file's rounding), or
+count what it cannot use, or refuse with one InputError naming the field and the fix.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pyproj import Transformer
+
+from factorgraph.field.gpx import read_gpx
+from factorgraph.field.nmea import read_nmea
+from factorgraph.field.rtklib import gps_utc_leap_s, read_rtklib
+from terrain.errors import InputError
+
+#: 20 fixes on a 2 s clock near the default site (58.42 N, 134.55 W), from 2026-07-01 20:00 UTC.
+N = 20
+T0 = dt.datetime(2026, 7, 1, 20, 0, tzinfo=dt.UTC).timestamp()
+UTC = T0 + 2.0 * np.arange(N)
+LAT = 58.4170 + 1e-5 * np.arange(N)
+LON = -134.5486 + 2e-5 * np.arange(N)
+H = 100.0 + 0.1 * np.arange(N)
+TO_ECEF = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+
+
+def _sd_row() -> str:
+    return " ".join(f"{v:8.4f}" for v in (0.01, 0.01, 0.02, 0, 0, 0)) + "   0.00  999.9"
+
+
+def _gpst(t: float) -> str:
+    return (dt.datetime.fromtimestamp(t + 18, dt.UTC)).strftime("%Y/%m/%d %H:%M:%S.000")
+
+
+def _columns(layout: str) -> str:
+    sd = {
+        "llh": "sdn(m) sde(m) sdu(m)",
+        "xyz": "sdx(m) sdy(m) sdz(m)",
+        "enu": "sde(m) sdn(m) sdu(m)",
+    }[layout]
+    pos = {
+        "llh": "latitude(deg) longitude(deg) height(m)",
+        "xyz": "x-ecef(m) y-ecef(m) z-ecef(m)",
+        "enu": "e-baseline(m) n-baseline(m) u-baseline(m)",
+    }[layout]
+    return f"{pos}   Q  ns {sd}"
+
+
+def _write(path: Path, layout: str, pos: np.ndarray, header: str = "", times=None) -> Path:
+    times = [_gpst(t) for t in UTC] if times is None else times
+    rows = [f"{times[i]} {p[0]:15.4f} {p[1]:15.4f} {p[2]:12.4f}   1  12 {_sd_row()}" for i, p in
+            enumerate(pos)]  # fmt: skip
+    text = "% program   : RTKPOST ver.2.4.3 b34\n" + header
+    text += f"%  GPST                  {_columns(layout)}  sdxy(m) sdyz(m) sdzx(m) age(s) ratio\n"
+    path.write_text(text + "\n".join(rows) + "\n")
+    return path
+
+
+def test_rtklib_ecef_solution_is_read_as_wgs84_llh(tmp_path):
+    x, y, z = TO_ECEF.transform(LON, LAT, H)
+    f = read_rtklib(_write(tmp_path / "xyz.pos", "xyz", np.column_stack([x, y, z])))
+    assert f.utc_s.size == N and not f.skipped
+    np.testing.assert_allclose(f.utc_s, UTC)  # GPST - 18 s
+    # the 1e-4 m ECEF rounding: below 2e-9 deg (0.2 mm) and 1e-4 m in height
+    np.testing.assert_allclose(f.lat_deg, LAT, atol=2e-9)
+    np.testing.assert_allclose(f.lon_deg, LON, atol=4e-9)
+    np.testing.assert_allclose(f.h_m, H, atol=2e-4)
+    # sdx = sdy = 0.01, sdz = 0.02 m, no cross terms, rotated to E, N, U: E only sees x, y
+    # (0.01 m); N and U mix z in by the latitude (invariant: the trace is kept)
+    assert f.sigma[0, 0] == pytest.approx(0.01, abs=1e-6)
+    assert np.sum(f.sigma[0] ** 2) == pytest.approx(0.01**2 + 0.01**2 + 0.02**2, rel=1e-9)
+    assert f.sigma[0, 2] > f.sigma[0, 1] > 0.01  # U is nearer the z axis at 58 N
+
+
+def test_rtklib_enu_baseline_needs_and_uses_the_ref_pos(tmp_path):
+    lat0, lon0, h0 = 58.40, -134.50, 80.0
+    base = np.array(TO_ECEF.transform(lon0, lat0, h0))
+    la, lo = math.radians(lat0), math.radians(lon0)
+    rot = np.array(
+        [
+            [-math.sin(lo), math.cos(lo), 0],
+            [-math.sin(la) * math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la)],
+            [math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la)],
+        ]
+    )
+    enu = (np.column_stack(TO_ECEF.transform(LON, LAT, H)) - base) @ rot.T
+    ref = f"% ref pos   :  {lat0:.9f} {lon0:.9f}    {h0:.4f}\n"
+    f = read_rtklib(_write(tmp_path / "enu.pos", "enu", enu, header=ref))
+    np.testing.assert_allclose(f.lat_deg, LAT, atol=2e-9)
+    np.testing.assert_allclose(f.lon_deg, LON, atol=4e-9)
+    np.testing.assert_allclose(f.h_m, H, atol=2e-4)
+    np.testing.assert_allclose(f.sigma[0], [0.01, 0.01, 0.02])  # sde sdn sdu as written
+    with pytest.raises(InputError, match=r"enu2.pos ref pos.*out-outhead"):
+        read_rtklib(_write(tmp_path / "enu2.pos", "enu", enu))
+
+
+def test_rtklib_gps_week_seconds_and_dms(tmp_path):
+    weeks = [divmod(t + 18 - 315964800.0, 604800.0) for t in UTC]  # GPS epoch 1980-01-06
+    times = [f"{int(w)} {s:11.3f}" for w, s in weeks]
+    llh = np.column_stack([LAT, LON, H])
+    f = read_rtklib(_write(tmp_path / "week.pos", "llh", llh, times=times))
+    np.testing.assert_allclose(f.utc_s, UTC)
+    np.testing.assert_allclose(f.lat_deg, LAT, atol=1e-4)  # the writer's %15.4f
+
+    def dms(v):
+        a = abs(v)
+        d, m = int(a), int((a - int(a)) * 60)
+        return f"{'-' if v < 0 else ''}{d} {m:02d} {((a - d) * 60 - m) * 60:09.6f}"
+
+    rows = [
+        f"{_gpst(UTC[i])} {dms(LAT[i])} {dms(LON[i])} {H[i]:10.4f}   5  12 {_sd_row()}"
+        for i in range(N)
+    ]
+    path = tmp_path / "dms.pos"
+    path.write_text(
+        "%  GPST                  latitude(d'\")  longitude(d'\")  height(m)   Q  ns   sdn(m)"
+        "   sde(m)   sdu(m)  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio\n" + "\n".join(rows) + "\n"
+    )
+    f = read_rtklib(path)
+    np.testing.assert_allclose(f.lat_deg, LAT, atol=1e-9)  # 1e-6 arc-seconds
+    np.testing.assert_allclose(f.lon_deg, LON, atol=1e-9)
+    assert set(f.quality) == {"single"}
+
+
+def test_rtklib_leap_seconds_by_date_and_unknown_header(tmp_path):
+    # IERS Bulletin C: GPS - UTC = 17 s during 2016, 18 s from 2017-01-01, 13 s in 2005
+    gpst = dt.datetime(2016, 12, 31, 23, 59, 59, tzinfo=dt.UTC).timestamp()
+    assert gps_utc_leap_s(gpst) == 17
+    assert gps_utc_leap_s(gpst + 20) == 18
+    assert gps_utc_leap_s(dt.datetime(2005, 6, 1, tzinfo=dt.UTC).timestamp()) == 13
+    path = tmp_path / "odd.pos"
+    path.write_text("%  GPST  foo(m) bar(m) baz(m) Q ns\n2026/07/01 20:00:00.000 1 2 3 1 5\n")
+    with pytest.raises(InputError, match=r"odd.pos header.*foo\(m\).*out-outhead"):
+        read_rtklib(path)
+
+
+def _cs(body: str) -> str:
+    c = 0
+    for ch in body:
+        c ^= ord(ch)
+    return f"${body}*{c:02X}"
+
+
+def _gga(t: float, i: int, talker: str = "GN") -> str:
+    tod = dt.datetime.fromtimestamp(t, dt.UTC).strftime("%H%M%S.00")
+    lat, lon = abs(LAT[i]), abs(LON[i])
+    la = f"{int(lat):02d}{(lat - int(lat)) * 60:010.7f}"
+    lo = f"{int(lon):03d}{(lon - int(lon)) * 60:010.7f}"
+    return _cs(f"{talker}GGA,{tod},{la},N,{lo},W,1,12,1.00,{H[i]:.4f},M,0.0,M,,")
+
+
+def _zda(t: float) -> str:
+    d = dt.datetime.fromtimestamp(t, dt.UTC)
+    return _cs(f"GPZDA,{d:%H%M%S}.00,{d:%d},{d:%m},{d:%Y},00,00")
+
+
+def _rmc(t: float) -> str:
+    d = dt.datetime.fromtimestamp(t, dt.UTC)
+    return _cs(f"GNRMC,{d:%H%M%S}.00,A,5825.0,N,13433.0,W,,,{d:%d%m%y},,,A")
+
+
+def test_nmea_date_from_zda_and_logger_prefixes(tmp_path):
+    lines = []
+    for i in range(N):  # a Trimble-style log: GGA + ZDA, no RMC, GP and GN talkers mixed
+        lines += [_gga(UTC[i], i, "GP" if i % 2 else "GN"), _zda(UTC[i])]
+    path = tmp_path / "zda.nmea"
+    path.write_text("\r\n".join(lines) + "\r\n\r\n")  # CRLF and a trailing empty line
+    f = read_nmea(path)
+    np.testing.assert_allclose(f.utc_s, UTC)
+    np.testing.assert_allclose(f.lat_deg, LAT, atol=2e-10)
+    stamped = [f"2026-07-01T20:00:{i:02d}Z  {ln}" for i, ln in enumerate(lines)]
+    path.write_text("\n".join(stamped) + "\n")  # a data logger's time stamp before each line
+    g = read_nmea(path)
+    np.testing.assert_allclose(g.utc_s, UTC)
+    path.write_text("time,lat,lon\n1,2,3\n")
+    with pytest.raises(InputError, match=r"NMEA sentences.*Fix: export the receiver"):
+        read_nmea(path)
+
+
+def test_nmea_log_started_before_midnight_without_a_date_yet(tmp_path):
+    # 20 fixes from 23:59:50 UTC; the first RMC comes only after midnight (the first 6 GGA
+    # have no date yet): they belong to the day before the RMC's date.
+    t0 = dt.datetime(2026, 7, 2, tzinfo=dt.UTC).timestamp() - 10.0
+    t = t0 + 2.0 * np.arange(N)
+    lines = [_gga(t[i], i) for i in range(6)]
+    for i in range(6, N):
+        lines += [_rmc(t[i]), _gga(t[i], i)]
+    path = tmp_path / "midnight.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    f = read_nmea(path)
+    np.testing.assert_allclose(f.utc_s, t)
+    assert not f.skipped
+
+
+def test_gpx_tracks_in_any_order_and_a_track_without_heights(tmp_path):
+    def seg(idx, ele=True):
+        pts = []
+        for i in idx:
+            when = dt.datetime.fromtimestamp(UTC[i], dt.timezone(dt.timedelta(hours=1)))
+            e = f"<ele>{H[i]:.3f}</ele>" if ele else ""
+            pts.append(
+                f'<trkpt lat="{LAT[i]:.9f}" lon="{LON[i]:.9f}">{e}'
+                f"<time>{when.isoformat()}</time></trkpt>"  # +01:00, not Z
+            )
+        return "<trkseg>" + "".join(pts) + "</trkseg>"
+
+    def gpx(body):
+        return (
+            '<?xml version="1.0"?><gpx version="1.0" creator="qa" '
+            f'xmlns="http://www.topografix.com/GPX/1/0">{body}</gpx>'
+        )
+
+    path = tmp_path / "newest_first.gpx"  # the newest track first, as many devices write
+    path.write_text(
+        gpx(f"<trk>{seg(range(12, N))}</trk><trk>{seg(range(6))}{seg(range(6, 12))}</trk>")
+    )
+    f = read_gpx(path)
+    assert not f.skipped  # before: 8 of 20 fixes counted as backwards_time
+    np.testing.assert_allclose(f.utc_s, UTC)
+    np.testing.assert_allclose(f.h_m, H)
+    path.write_text(gpx(f"<trk>{seg(range(N), ele=False)}</trk>"))
+    with pytest.raises(InputError, match=r"no_elevation.*Fix: export the track with heights"):
+        read_gpx(path)
