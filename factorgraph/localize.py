@@ -3,6 +3,11 @@ Gauss-Markov bias states (or, as a negative control, plain white-noise GPS facto
 ``GenericProjectionFactorCal3_S2`` with a Huber kernel on explicit ``Point3`` landmarks,
 initialised by gated triangulation.
 
+After the online pass: the staged batch refinement (:mod:`factorgraph.refine`), the
+per-view reprojection gate that takes wrong associations out of the graph and refines
+again (:mod:`factorgraph.view_gate`), and the retry of the tracks that failed the gates
+online (:mod:`factorgraph.track_init`).
+
 Each step asks iSAM2 only for the current pose (docs/architecture.md §5: a whole-graph
 ``calculateEstimate`` per step costs ~0.6 s at 600 steps). Landmark marginals are computed
 once at the final estimate by :mod:`factorgraph.marginals`.
@@ -25,10 +30,12 @@ from .control import ControlPoints, add_control_factors, control_report, plan_co
 from .factors import biased_gps_factor, drift_odometry_factor, gauss_markov_factor, gm_transition
 from .field.gate import gate_log
 from .log import MeasurementLog
-from .rebuild import OnlineGuard, rebuild_isam, without_keys
+from .rebuild import OnlineGuard, rebuild_isam
 from .result import LocalizationResult
 from .track_init import retry_failed_tracks
 from .track_init import triangulate_track as _triangulate
+from .view_gate import drop_landmarks_at_cameras as _drop_landmarks_at_cameras
+from .view_gate import gated_refinement
 
 __all__ = ["LocalizeParams", "localize"]
 
@@ -77,12 +84,18 @@ class LocalizeParams:
     # triangulate the tracks that failed the gates online again at the refined poses
     # (factorgraph/track_init.py; measured in docs/vision.md)
     retry_failed_tracks: bool = True
+    # cut the views beyond max_reprojection_px at the refined estimate (wrong associations)
+    # and refine again without them, at most this many gate passes; 0: off
+    # (factorgraph/view_gate.py; measured in docs/vision.md, "Wrong matches")
+    view_gate_rounds: int = 3
     refine_max_iterations: int = 20  # Levenberg-Marquardt steps (each stage)
     refine_rtol: float = 1e-4  # stop when a step lowers the graph error by less (relative)
 
     def __post_init__(self) -> None:
         if self.gps_model not in ("bias", "white"):
             raise bad_input("params.gps_model", self.gps_model, "'bias' or 'white'", "")
+        if int(self.view_gate_rounds) < 0:
+            raise bad_input("params.view_gate_rounds", self.view_gate_rounds, "an integer >= 0", "")
         if int(self.min_views) < 2:
             raise bad_input("params.min_views", self.min_views, "an integer >= 2", "")
         for name in ("huber_k", "min_parallax_deg", "max_reprojection_px", "drift_walk_per_km"):
@@ -203,40 +216,6 @@ def _isam_params(params: LocalizeParams):
     return p
 
 
-def _drop_landmarks_at_cameras(
-    graph, estimate, tracks: _Tracks, bTc, min_depth_m: float, max_range_m: float = np.inf
-):
-    """Remove the landmarks that the refinement left nearer than ``min_depth_m`` to (or
-    behind), or farther than ``max_range_m`` from, a camera that sees them, with their
-    factors and values; counted in ``tracks.dropped["depth_after_refine"]``. (Far: a wrong
-    association ran one landmark 30 km away; 10 % swapped image tracks, 51 keyframes.)
-    Near: a wrong association can pull a point onto a camera centre, where its information
-    is ~1e15 and the Schur complement of the marginals loses positive definiteness
-    (measured: 10 % swapped image tracks, 51 keyframes)."""
-    import gtsam
-
-    bad = set()
-    for i in range(graph.size()):
-        f = graph.at(i)
-        keys = [gtsam.Symbol(key) for key in f.keys()] if f is not None else []
-        if len(keys) != 2 or {chr(k.chr()) for k in keys} != {"x", "l"}:
-            continue
-        xk, lk = sorted(keys, key=lambda k: chr(k.chr()) == "l")
-        wTc = estimate.atPose3(xk.key()).compose(bTc)
-        pc = wTc.transformTo(estimate.atPoint3(lk.key()))
-        if pc[2] < min_depth_m or np.linalg.norm(pc) > max_range_m:
-            bad.add(int(lk.index()))
-    if not bad:
-        return graph
-    L = gtsam.symbol_shorthand.L
-    kept = without_keys(graph, {L(lid) for lid in bad})
-    for lid in bad:
-        estimate.erase(L(lid))
-        tracks.active.discard(lid)
-        tracks.dropped["depth_after_refine"] += 1
-    return kept
-
-
 def localize(
     log: MeasurementLog,
     params: LocalizeParams | None = None,
@@ -266,6 +245,10 @@ def localize(
         ``refine["isam2_recovery"]`` (with the refinement on) counts what kept the online
         pass alive by kind (:class:`factorgraph.rebuild.OnlineGuard`): views deferred to the
         batch refinement, landmarks postponed, rebuilds and the landmarks they dropped.
+        ``refine["view_gate"]`` (with the refinement on and ``view_gate_rounds`` > 0) counts
+        the views beyond ``max_reprojection_px`` cut at the refined estimate and the
+        landmarks removed with them (:func:`factorgraph.view_gate.gated_refinement`; those
+        landmarks count as ``gate_after_refine`` in ``dropped``).
     """
     import gtsam
 
@@ -447,11 +430,20 @@ def localize(
     estimate = isam.calculateEstimate()
     graph = history
     graph.push_back(guard.deferred)  # linearized at the refined estimate from here on
-    refine_report, retry = None, {}
+    refine_report, retry, gate = None, {}, None
     if params.refine:
+        online_estimate = estimate
         estimate, refine_report = refine_estimate(
             graph, estimate, bTc, K, params.refine_max_iterations, params.refine_rtol
         )
+        if params.view_gate_rounds:  # wrong associations out (factorgraph/view_gate.py)
+            graph, estimate, refine_report, gate = gated_refinement(
+                graph, online_estimate, estimate, refine_report, bTc, K, params
+            )
+            for lid in gate.pop("removed_ids"):  # counted, not listed; not retried
+                tracks.active.discard(lid)
+                tracks.banned.add(lid)
+                tracks.dropped["gate_after_refine"] += 1
         if params.retry_failed_tracks:  # at the refined poses (factorgraph/track_init.py)
             graph, estimate, retry = retry_failed_tracks(
                 graph, estimate, tracks, camera, bTc, K, pix_noise, params
@@ -465,6 +457,8 @@ def localize(
     )
     marginal_s = time.perf_counter() - t0
     report = {**refine_report.as_dict(), **retry} if refine_report is not None else {}
+    if gate is not None:
+        report["view_gate"] = gate
     if report:  # views deferred, landmarks postponed, rebuilds (rebuild.py); with refine off
         report["isam2_recovery"] = guard.report()  # only n_rebuilds (result.py has no field)
     result = LocalizationResult.build(

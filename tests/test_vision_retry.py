@@ -112,8 +112,9 @@ def test_localize_counts_every_track_once_with_and_without_retry():
     assert out[True].n_landmarks > out[False].n_landmarks
     assert rep["retry_tried"] == sum(
         v for key, v in out[False].dropped.items() if key not in ("too_few_views",)
-    ) - out[False].dropped.get("degenerate_in_graph", 0) - out[False].dropped.get(
-        "depth_after_refine", 0
+    ) - sum(
+        out[False].dropped.get(why, 0)
+        for why in ("degenerate_in_graph", "depth_after_refine", "gate_after_refine")
     )
 
 
