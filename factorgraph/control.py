@@ -27,6 +27,8 @@ from pyproj import CRS, Transformer
 
 from terrain.errors import bad_input
 
+from .field.table import header_key, read_text_table, sidecar_crs
+
 __all__ = [
     "ControlPlan",
     "ControlPoints",
@@ -181,7 +183,7 @@ def _canonical(header: list[str], path: Path) -> dict[str, int]:
     """Header -> {canonical column: index}; unknown columns raise with a did-you-mean."""
     cols: dict[str, int] = {}
     for i, raw in enumerate(header):
-        h = raw.strip().lower()
+        h = header_key(raw, _LOOKUP)
         name = _LOOKUP.get(h)
         if name is None and h not in NOTE_COLUMNS:
             near = difflib.get_close_matches(h, [*_LOOKUP, *NOTE_COLUMNS], n=1)
@@ -229,23 +231,17 @@ def read_control(
         In the file's CRS; :meth:`ControlPoints.to_crs` reprojects to the map's.
     """
     path = Path(path)
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            rows = [r for r in csv.reader(fh) if any(c.strip() for c in r)]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise bad_input("control file", str(path), "a readable CSV", str(exc)) from exc
+    if not path.is_file():
+        raise bad_input("control file", str(path), "an existing CSV file", "check the path")
+    table = read_text_table(path, "control file")
+    rows = [table.header, *table.rows]
     if len(rows) < 2:
         raise bad_input("control file", str(path), "a header and >= 1 point", "add points")
     cols = _canonical(rows[0], path)
     missing = [c for c in ("id", "x", "y", "z") if c not in cols]
-    if missing:
-        raise bad_input(
-            f"{path.name} header", rows[0], f"columns {missing} too", "see read_control's doc"
-        )
+    if missing:  # id: the point's name, which stops.csv, targets and the report use
+        raise bad_input(f"{path.name} header", rows[0], f"columns {missing} too", "see ALIASES")
     body = rows[1:]
-    short = [i + 2 for i, r in enumerate(body) if len(r) != len(rows[0])]
-    if short:
-        raise bad_input(f"{path.name} lines", short[:10], f"{len(rows[0])} cells each", "")
 
     def col(name: str) -> np.ndarray | None:
         if name not in cols:
@@ -267,8 +263,10 @@ def read_control(
     file_crs = {r[cols["crs"]].strip() for r in body} - {""} if "crs" in cols else set()
     if len(file_crs) > 1:
         raise bad_input(f"{path.name} crs", sorted(file_crs), "one CRS per file", "reproject")
+    file_crs = file_crs or {side[0] for side in [sidecar_crs(path)] if side}
     if not file_crs and crs is None:
-        raise bad_input("control crs", path.name, "a crs column or crs=...", 'e.g. "EPSG:4326"')
+        want = f"a crs column, a {path.stem}.crs sidecar or crs="
+        raise bad_input("control crs", path.name, want, 'e.g. "EPSG:4326"')
     use = crs if crs is not None else file_crs.pop()
     if use.isdigit() if isinstance(use, str) else False:
         use = f"EPSG:{use}"

@@ -169,6 +169,18 @@ def bias_assessment(err: np.ndarray) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- certify
+def _dropped_warning(n_total: int, n_used: int, *masks: np.ndarray) -> str | None:
+    """Words for checkpoints that were read but not scored (None when all were)."""
+    if n_used == n_total:
+        return None
+    names = ("with NaN values", "not projectable", "outside the DEM", "on nodata")
+    why = ", ".join(f"{int(m.sum())} {w}" for m, w in zip(masks, names, strict=True) if m.any())
+    return (
+        f"{n_total - n_used} of {n_total} checkpoints were not scored ({why}): the certificate "
+        f"rests on {n_used}; check the checkpoints' CRS and the map's extent"
+    )
+
+
 def certify(
     dem: Any,
     checkpoints: Checkpoints | str | os.PathLike | Mapping[str, Any],
@@ -247,12 +259,19 @@ def certify(
     used = cand & ~nodata
     n = int(used.sum())
     if n == 0:
+        ok = ~nan
+        degrees = ok.any() and bool(
+            (np.abs(cps.xy[ok, 0]) <= 180).all() and (np.abs(cps.xy[ok, 1]) <= 90).all()
+        )
         raise bad_input(
             "checkpoints",
             f"0 of {cps.n} usable ({int(nan.sum())} NaN, {int(unprojectable.sum())} not "
             f"projectable, {int(outside.sum())} outside the DEM, {int(nodata.sum())} on nodata)",
             "checkpoints on valid DEM cells",
-            "check the CRS and the extent of both files",
+            "the coordinates look like longitude / latitude degrees but the file names no CRS: "
+            "add a crs column (e.g. EPSG:4326) or a .crs sidecar"
+            if cps.crs is None and degrees
+            else "check the CRS and the extent of both files",
         )
     err = dem_z[used] - cps.z[used]
     rmse = float(np.sqrt(np.mean(err**2)))
@@ -357,7 +376,14 @@ def certify(
         "accuracy": accuracy,
         "contour_interval": {"certified_m": ci, "how": how, "finest_m": finest},
         "verdicts": verdicts,
-        "warnings": [m for m in (accuracy["bias_assessment"]["message"],) if m],
+        "warnings": [
+            m
+            for m in (
+                _dropped_warning(cps.n, n, nan, unprojectable, outside, nodata),
+                accuracy["bias_assessment"]["message"],
+            )
+            if m
+        ],  # fmt: skip
         "calibration": calibration,
         "error_histogram": {"edges_m": edges, "counts": counts},
         "seed": int(seed),

@@ -10,13 +10,11 @@
 
 from __future__ import annotations
 
-import csv
 import difflib
 import hashlib
 import json
 import math
 import os
-import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -24,6 +22,7 @@ from typing import Any
 import numpy as np
 from pyproj import CRS
 
+from factorgraph.field.table import header_key, read_text_table, sidecar_crs
 from terrain import Grid
 from terrain.errors import bad_input
 from terrain.grid import check_same_crs, north_up
@@ -126,9 +125,7 @@ def any_crs(value: Any, field_name: str) -> CRS:
 
 
 def _header_key(name: str) -> str:
-    key = re.sub(r"\s*[\(\[][^\)\]]*[\)\]]\s*$", "", str(name).strip().lower())
-    key = re.sub(r"[\s\-]+", "_", key)
-    return key[:-2] if key.endswith("_m") and key[:-2] in _ALIAS else key
+    return header_key(name, _ALIAS)
 
 
 def _canonical(cols: dict[str, Any], name: str) -> tuple[dict[str, Any], dict[str, str], list]:
@@ -187,22 +184,7 @@ def _table(path: Path) -> dict[str, list[Any]]:
         except Exception as exc:  # pyarrow raises ArrowInvalid / OSError subclasses
             raise bad_input("CHECKPOINTS", path.name, "a Parquet table", str(exc)) from exc
         return {n.strip(): table.column(n).to_pylist() for n in table.column_names}
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            reader = csv.reader(fh)
-            header = [h.strip() for h in next(reader, [])]
-            rows = [r for r in reader if any(c.strip() for c in r)]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise bad_input("CHECKPOINTS", path.name, "a readable UTF-8 CSV", str(exc)) from exc
-    bad = [i for i, r in enumerate(rows) if len(r) != len(header)]
-    if bad:
-        raise bad_input(
-            f"{path.name} row {bad[0]}",
-            rows[bad[0]],
-            f"{len(header)} cells like the header {header}",
-            "fix the row",
-        )
-    return {h: [r[j] for r in rows] for j, h in enumerate(header)}
+    return read_text_table(path, "CHECKPOINTS").columns()
 
 
 def _file_crs(path: Path | None, cols: dict[str, Any]) -> tuple[Any, str] | None:
@@ -215,11 +197,7 @@ def _file_crs(path: Path | None, cols: dict[str, Any]) -> tuple[Any, str] | None
             raise bad_input("crs column", values, "one CRS for every row", "reproject the rows")
         if values:
             return values[0], "crs column"
-    for suffix in (".crs", ".prj") if path is not None else ():
-        side = path.with_suffix(suffix)
-        if side.is_file():
-            return side.read_text(encoding="utf-8").strip(), f"sidecar {side.name}"
-    return None
+    return None if path is None else sidecar_crs(path)
 
 
 def _column(values: Any, where: str) -> np.ndarray:

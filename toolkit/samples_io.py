@@ -12,6 +12,7 @@ from pyproj import CRS, Transformer
 from pyproj.aoi import AreaOfInterest
 from pyproj.database import query_utm_crs_info
 
+from factorgraph.field.table import read_text_table
 from terrain import ElevationSamples
 from terrain.errors import bad_input
 
@@ -66,9 +67,9 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
         )
     import pandas as pd  # a quoted crs column (a WKT with commas) is one field
 
-    frame = pd.read_csv(path, encoding="utf-8")
+    cells = read_text_table(path, "SAMPLES").columns()  # the checkpoints' delimiters, encodings
     extra_cols = {
-        c: pd.to_numeric(frame[c], errors="coerce").to_numpy(float) for c in frame.columns
+        c: pd.to_numeric(pd.Series(v), errors="coerce").to_numpy(float) for c, v in cells.items()
     }
     names = {str(n).lower(): n for n in extra_cols}
     bad = table.nan_rows()
