@@ -236,6 +236,7 @@ def run_scenario(
         "metrics": metrics,
         "certificate": {k: cert[k] for k in cert if k not in ("scenario", "truth_metrics")},
         "timings_s": res.timings,
+        "products": pres.products,  # what the next run into ``out`` may replace
     }
     if "site_dem" in truth.attrs:  # kind = "dem": the CRS, bounds and nodata, stated
         res.summary["site"] = json.loads(truth.attrs["site_dem"])

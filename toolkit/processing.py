@@ -22,11 +22,11 @@ import numpy as np
 
 from factorgraph.log import MeasurementLog
 from terrain import RasterMean
-from terrain.atomic import atomic_path, ensure_writable_dir
+from terrain.atomic import atomic_path
 from terrain.errors import InputError, bad_input
 
 from .config import load_scenario
-from .export._files import staged_folder
+from .export._files import output_folder, previous_products, remove_stale, staged_folder
 from .stages import (
     certify_stage,
     localization_summary,
@@ -50,6 +50,10 @@ class ProcessResult:
     timings: dict[str, float] = field(default_factory=dict)
     summary: dict[str, Any] = field(default_factory=dict)
     objects: dict[str, Any] = field(default_factory=dict)
+    #: Files written into ``out`` (``summary.json["products"]``), and those of an earlier run
+    #: into the same ``out`` that this one removed (:func:`.export._files.remove_stale`).
+    products: list[str] = field(default_factory=list)
+    removed: list[str] = field(default_factory=list)
 
     @contextmanager
     def stage(self, name: str, notify: Callable[[str, str], None] | None = None):
@@ -159,9 +163,20 @@ def process(
         them.
     """
     settings = config if isinstance(config, dict) else load_scenario(config)
-    out = ensure_writable_dir(out)
+    with output_folder(out) as folder:
+        return _process(
+            log, prior, control, checkpoints, settings, folder, bounds, on_stage, on_progress,
+            truth, truth_path,
+        )  # fmt: skip
+
+
+def _process(
+    log, prior, control, checkpoints, settings, out, bounds, on_stage, on_progress, truth,
+    truth_path,
+) -> ProcessResult:  # fmt: skip
     seed = int(settings["seed"])
     res = ProcessResult(out=out, settings=settings)
+    before = previous_products(out)
 
     def stage(name: str):
         return res.stage(name, on_stage)
@@ -216,13 +231,16 @@ def process(
             if truth is not None:
                 truth_on_grid = truth.interp(x=grid.x, y=grid.y, method="linear")
             write_products(tmp_out, rec, cert, loc, sel, settings, truth_on_grid, truth_path)
+            res.products = sorted([p.name for p in tmp_out.iterdir()] + ["summary.json"])
             res.summary = {
                 "seed": seed,
                 "certificate": cert,
                 "timings_s": res.timings,
+                "products": res.products,
             }
             with atomic_path(tmp_out / "summary.json") as tmp:
                 tmp.write_text(json.dumps(res.summary, indent=2, default=_json_default))
+    res.removed = remove_stale(out, before, res.products)
     res.objects = {
         "log": mlog,
         "localization": loc,

@@ -38,17 +38,63 @@ def _root() -> None:
     """Certified, probabilistic elevation maps of glaciers from a rover survey."""
 
 
-app.command("run")(run.run_command)
-app.command("process")(process.process_command)
-app.command("plan")(plan.plan_command)
-app.command("simulate")(simulate.simulate_command)
-app.command("localize")(localize.localize_command)
-app.command("reconstruct")(reconstruct.reconstruct)
-app.command("sweep")(sweep.sweep_command)
-app.command("export")(export.export_command)
-app.command("certify")(certify.certify_command)
-app.command("report")(report.report_command)
-app.command("change")(change.change_command)
+#: One line per command for ``glacimap --help`` (typer would list the whole first paragraph
+#: of each docstring with its hard line breaks); ``glacimap COMMAND --help`` gives the rest.
+COMMANDS = (
+    (
+        "run",
+        run.run_command,
+        "The main job: simulate a survey and process it to certified products.",
+    ),
+    (
+        "process",
+        process.process_command,
+        "A real survey's files (field folder, DEM, control, checkpoints) to certified products.",
+    ),
+    (
+        "plan",
+        plan.plan_command,
+        "Plan a survey (lawnmower or piecewise continuous) and score its coverage.",
+    ),
+    (
+        "simulate",
+        simulate.simulate_command,
+        "Simulate a rover traverse: its measurement log or a field folder.",
+    ),
+    (
+        "localize",
+        localize.localize_command,
+        "Fuse a measurement log in iSAM2 and select landmarks (samples.csv).",
+    ),
+    (
+        "reconstruct",
+        reconstruct.reconstruct,
+        "A map (mean and 1-sigma) from samples.csv with a Gaussian process.",
+    ),
+    (
+        "sweep",
+        sweep.sweep_command,
+        "Random terrains: the fewest swaths per mapping class (Fig. 10-11).",
+    ),
+    ("export", export.export_command, "A terrain product to COG, contours and mesh."),
+    (
+        "certify",
+        certify.certify_command,
+        "Certify any DEM's vertical accuracy against independent checkpoints.",
+    ),
+    (
+        "report",
+        report.report_command,
+        "Rebuild the self-contained HTML report of a run or a certified DEM.",
+    ),
+    (
+        "change",
+        change.change_command,
+        "Elevation and volume change between two DEMs, with an error budget.",
+    ),
+)
+for _name, _fn, _short in COMMANDS:
+    app.command(_name, short_help=_short)(_fn)
 
 err_console = Console(stderr=True)
 
@@ -64,7 +110,9 @@ def main() -> None:
         rc = app(standalone_mode=False)
     except GlacimapError as exc:
         # escape: messages quote user values, and "[table]" would read as rich markup
-        err_console.print(f"[bold red]error:[/] {escape(str(exc))}")
+        # soft_wrap: one line however narrow the terminal (or 80 columns in a pipe), so that
+        # scripts and logs read the error as the README promises
+        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
         sys.exit(2)
     except (typer.Abort, KeyboardInterrupt):
         rc = INTERRUPTED
@@ -80,7 +128,8 @@ def main() -> None:
     if rc == INTERRUPTED:
         err_console.print(
             "[yellow]interrupted (Ctrl-C):[/] stopped; no file is left half-written "
-            "(every write is atomic)"
+            "(every write is atomic)",
+            soft_wrap=True,
         )
     sys.exit(rc if isinstance(rc, int) else 0)
 

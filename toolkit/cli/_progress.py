@@ -48,6 +48,9 @@ def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
         lo, hi = acc["rmse_ci95_m"]
         table.add_row("RMSE vs checkpoints (m)", f"{acc['rmse_m']:.3f} [{lo:.3f}, {hi:.3f}]")
         table.add_row("bias, map - checkpoint (m)", f"{acc['bias_m']:+.3f}")
+        cps = cert.get("checkpoints") or {}
+        if "n_used" in cps:
+            table.add_row("checkpoints scored", f"{cps['n_used']} of {cps['n_total']}")
     held = cert.get("heldout_calibration")
     if held:
         pooled = held.get("pooled", held)
@@ -60,7 +63,10 @@ def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
     elif ci.get("uncertified_m"):
         table.add_row("contour interval (m, uncertified)", f"{ci['uncertified_m']:g}")
     for v in cert.get("verdicts", []):
-        table.add_row(f"{v['standard']} class", str(v.get("class")))
+        cls = str(v.get("class"))
+        if v.get("passed") is False and v.get("notes"):  # a class named but not met
+            cls += f" (not met: {v['notes'][0]})"
+        table.add_row(f"{v['standard']} class", cls)
 
 
 def print_warnings(console: Console, cert: dict[str, Any]) -> None:

@@ -72,4 +72,9 @@ def process_command(
     for name, t in res.summary["timings_s"].items():
         table.add_row(f"time: {name} (s)", f"{t:.1f}")
     console.print(table)
+    if res.removed:
+        console.print(
+            f"removed {len(res.removed)} product(s) of an earlier run into {res.out} that this "
+            f"run did not make: {', '.join(res.removed)}"
+        )
     print_warnings(console, cert)

@@ -10,7 +10,14 @@ from pathlib import Path
 from terrain.atomic import atomic_path
 from terrain.errors import bad_input
 
-__all__ = ["atomic_file", "check_target", "staged_folder"]
+__all__ = [
+    "atomic_file",
+    "check_target",
+    "output_folder",
+    "previous_products",
+    "remove_stale",
+    "staged_folder",
+]
 
 
 def check_target(path: str | os.PathLike, suffixes: tuple[str, ...], field: str) -> Path:
@@ -105,3 +112,51 @@ def staged_folder(out: Path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
+
+
+@contextlib.contextmanager
+def output_folder(out: str | os.PathLike) -> Iterator[Path]:
+    """Create ``out`` (and missing parents) and check it is writable; if the block fails and
+    the folders this created hold no file, remove them again: a failed command leaves
+    nothing behind, not even an empty ``--out``."""
+    import shutil
+
+    from terrain.atomic import ensure_writable_dir
+
+    out = Path(out)
+    first_new = None
+    for folder in (out, *out.parents):
+        if folder.exists():
+            break
+        first_new = folder
+    folder = ensure_writable_dir(out)
+    try:
+        yield folder
+    except BaseException:
+        if first_new is not None and not any(p.is_file() for p in first_new.rglob("*")):
+            shutil.rmtree(first_new, ignore_errors=True)
+        raise
+
+
+def previous_products(out: Path, summary: str = "summary.json") -> list[str]:
+    """The product files an earlier run listed in ``out/summary.json`` (``products``)."""
+    import json
+
+    try:
+        listed = json.loads((Path(out) / summary).read_text()).get("products", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [str(n) for n in listed if isinstance(n, str) and "/" not in n and n != ".."]
+
+
+def remove_stale(out: Path, before: list[str], now: list[str]) -> list[str]:
+    """Delete the files of ``before`` (an earlier run's products in ``out``) that this run did
+    not write (``now``): a second run into the same ``--out`` must not leave, say, the first
+    run's ``report.html`` beside a certificate it does not describe. Returns their names."""
+    gone = []
+    for name in sorted(set(before) - set(now)):
+        path = Path(out) / name
+        if path.is_file():
+            path.unlink()
+            gone.append(name)
+    return gone

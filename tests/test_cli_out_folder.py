@@ -1,0 +1,97 @@
+"""The command line as a new user meets it (issue 17): a one-line error however narrow the
+terminal, a readable command list, no empty --out left by a failure, and no product of an
+earlier run left beside a new one in the same --out."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from terrain.errors import InputError
+from toolkit import process
+from toolkit.cli import COMMANDS, app
+from toolkit.export._files import previous_products, remove_stale
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+
+
+def test_error_is_one_line_in_a_narrow_terminal_or_a_pipe(tmp_path):
+    env = {**os.environ, "COLUMNS": "40"}
+    missing = tmp_path / "no such dir" / "dem.tif"  # a path with a space, as users have
+    res = subprocess.run(
+        [sys.executable, "-m", "toolkit", "certify", str(missing), str(tmp_path / "cp.csv")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Fix" in ln]
+    assert len(lines) == 1 and "Fix: check the path" in lines[0]  # before: 3 wrapped lines
+
+
+def test_command_list_has_one_short_line_per_command():
+    names = {c.name for c in app.registered_commands}
+    assert names == {name for name, _, _ in COMMANDS}
+    out = CliRunner().invoke(app, ["--help"]).output
+    flat = " ".join(re.sub(r"[│╭╮╰╯─]", " ", out).split())  # rich's box and wrapping removed
+    for _, _, short in COMMANDS:
+        assert "\n" not in short and len(short) <= 90
+        assert short in flat  # before: each docstring's first paragraph with its line breaks
+
+
+def test_failed_process_leaves_no_empty_out(tmp_path):
+    out = tmp_path / "new" / "deeper" / "out"
+    with pytest.raises(InputError, match="LOG_DIR"):
+        process(tmp_path, out=out)  # not a field folder: fails at ingest
+    assert not (tmp_path / "new").exists()  # before: new/deeper/out stayed, empty
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(InputError):
+        process(tmp_path, out=tmp_path / "kept")
+    assert (tmp_path / "kept").is_dir()  # a folder the user made is never removed
+
+
+def test_stale_products_of_an_earlier_run_are_removed(tmp_path):
+    for name in ("report.html", "certificate.json", "mine.txt"):
+        (tmp_path / name).write_text("x")
+    listed = ["report.html", "certificate.json", "summary.json", "../escape"]
+    (tmp_path / "summary.json").write_text(json.dumps({"products": listed}))
+    before = previous_products(tmp_path)
+    assert before == ["report.html", "certificate.json", "summary.json"]  # no path tricks
+    gone = remove_stale(tmp_path, before, ["certificate.json", "summary.json"])
+    assert gone == ["report.html"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "certificate.json",
+        "mine.txt",  # not a product of an earlier run: never touched
+        "summary.json",
+    ]
+    (tmp_path / "summary.json").write_text("not json")
+    assert previous_products(tmp_path) == []
+
+
+@pytest.mark.slow
+def test_process_twice_into_one_out_without_then_with_checkpoints(tmp_path):
+    """The example field folder with and then without checkpoints: the second run's folder
+    holds no report.html from the first (it would describe a certificate no longer there)."""
+    import numpy as np
+
+    from terrain.synthetic import default_site
+    from toolkit.field_survey import simulated_prior
+
+    truth = default_site(resolution=4.0)
+    prior = simulated_prior(truth, 75.0, 1.5, 0.3, np.random.default_rng(0))
+    cps = tmp_path / "cp.csv"
+    cps.write_text("id;x;y;z;crs\n1;526300,5;6475280,25;100;EPSG:32608\n")  # semicolons
+    out = tmp_path / "out dir"
+    first = process(EXAMPLE, prior=prior, checkpoints=cps, out=out)
+    assert "report.html" in first.products
+    second = process(EXAMPLE, prior=prior, out=out)
+    assert second.removed == ["report.html"] and not (out / "report.html").exists()
+    assert sorted(second.products) == sorted(p.name for p in out.iterdir() if p.is_file())
