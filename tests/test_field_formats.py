@@ -227,3 +227,26 @@ def test_gpx_tracks_in_any_order_and_a_track_without_heights(tmp_path):
     path.write_text(gpx(f"<trk>{seg(range(N), ele=False)}</trk>"))
     with pytest.raises(InputError, match=r"no_elevation.*Fix: export the track with heights"):
         read_gpx(path)
+
+
+def test_rover_tables_from_a_european_spreadsheet(tmp_path):
+    """odometry, tilt and tracks saved with ';', a decimal comma and CRLF read back the same
+    log as the example folder's plain CSV (17 significant digits survive the comma)."""
+    import shutil
+
+    from factorgraph import read_field_log
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    folder = tmp_path / "field"
+    shutil.copytree(example, folder)
+    for name in ("odometry.csv", "tilt.csv", "tracks.csv"):
+        lines = (folder / name).read_text().splitlines()
+        lines = [ln.replace(",", ";").replace(".", ",") for ln in lines]
+        (folder / name).write_bytes(("\r\n".join(lines) + "\r\n").encode("cp1252"))
+    ref, _ = read_field_log(example)
+    log, rep = read_field_log(folder)  # before: "columns [...] too" on the first table
+    np.testing.assert_array_equal(log.t, ref.t)
+    np.testing.assert_array_equal(log.odometry, ref.odometry)
+    np.testing.assert_array_equal(log.tilt_up, ref.tilt_up)
+    np.testing.assert_array_equal(log.obs_uv, ref.obs_uv)
+    assert rep.tilt == "used"

@@ -21,6 +21,8 @@ import numpy as np
 
 from terrain.errors import bad_input
 
+from .table import csv_dialect
+
 __all__ = ["ODOMETRY_COLUMNS", "nearest_keyframe", "read_odometry", "read_tilt", "read_tracks"]
 
 ODOMETRY_COLUMNS = ("t_s", "rx", "ry", "rz", "tx", "ty", "tz")
@@ -30,7 +32,7 @@ def _table(path: Path, required: tuple[str, ...], alternatives: tuple[str, ...] 
     import pandas as pd
 
     try:
-        df = pd.read_csv(path, float_precision="round_trip")
+        df = pd.read_csv(path, float_precision="round_trip", **csv_dialect(path))
     except (ValueError, OSError) as exc:  # pandas parser errors are ValueErrors
         raise bad_input(path.name, str(exc)[:120], "a readable CSV table", "repair it") from exc
     df.columns = [str(c).strip() for c in df.columns]

@@ -27,6 +27,8 @@ import numpy as np
 from terrain.atomic import atomic_path
 from terrain.errors import bad_input
 
+from .table import csv_dialect
+
 __all__ = ["STOPS_FILE", "read_stops", "write_stops"]
 
 #: Default file name of the stops table in a field folder.
@@ -67,7 +69,9 @@ def read_stops(path: str | Path, t_kf: np.ndarray, tol_s: float) -> tuple[np.nda
 
     path = Path(path)
     try:
-        df = pd.read_csv(path, dtype={"control_id": str}, keep_default_na=False)
+        df = pd.read_csv(
+            path, dtype={"control_id": str}, keep_default_na=False, **csv_dialect(path)
+        )
     except (ValueError, OSError) as exc:
         raise bad_input(path.name, str(exc)[:120], "a readable CSV table", "repair it") from exc
     df.columns = [str(c).strip() for c in df.columns]

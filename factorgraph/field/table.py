@@ -28,7 +28,14 @@ from pathlib import Path
 
 from terrain.errors import bad_input
 
-__all__ = ["DELIMITERS", "TextTable", "header_key", "read_text_table", "sidecar_crs"]
+__all__ = [
+    "DELIMITERS",
+    "TextTable",
+    "csv_dialect",
+    "header_key",
+    "read_text_table",
+    "sidecar_crs",
+]
 
 #: Delimiters a table may use; the header line decides (ties: the earlier one).
 DELIMITERS = (",", ";", "\t", "|")
@@ -85,6 +92,30 @@ def _split(line: str, delimiter: str) -> list[str]:
     return next(csv.reader([line], delimiter=delimiter), [])
 
 
+def _delimiter(header_line: str) -> str:
+    counts = [len(_split(header_line, d)) for d in DELIMITERS]
+    return DELIMITERS[counts.index(max(counts))]
+
+
+def csv_dialect(path: str | Path) -> dict[str, str]:
+    """``pandas.read_csv`` keywords for a table in any of the accepted dialects: ``sep``
+    (from the header line), ``decimal`` (``","`` when the delimiter is not a comma and one of
+    the first 49 data lines has a decimal comma) and ``encoding`` (``utf-8-sig`` or ``cp1252``).
+    The field folder's rover tables (odometry, tilt, tracks, stops) are read with it."""
+    text, encoding = _decode(Path(path).read_bytes()[:65536])
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    sep = _delimiter(lines[0]) if lines else ","
+    comma = sep != "," and any(
+        _DECIMAL_COMMA.match(c) for ln in lines[1:50] for c in _split(ln, sep)
+    )
+    return {
+        "sep": sep,
+        "decimal": "," if comma else ".",
+        "encoding": "utf-8-sig" if encoding == "utf-8" else "cp1252",
+        "comment": "#",
+    }
+
+
 def read_text_table(path: str | Path, what: str) -> TextTable:
     """Read a delimited text table with a header row (module docstring for what is accepted).
 
@@ -115,8 +146,7 @@ def read_text_table(path: str | Path, what: str) -> TextTable:
     ]
     if not lines:
         raise bad_input(what, path.name, "a header row and data rows", "the file is empty")
-    counts = [len(_split(lines[0][1], d)) for d in DELIMITERS]
-    delimiter = DELIMITERS[counts.index(max(counts))]
+    delimiter = _delimiter(lines[0][1])
     if delimiter != ",":
         notes.append(f"delimiter {delimiter!r}")
     parsed = list(csv.reader((ln for _, ln in lines), delimiter=delimiter))
