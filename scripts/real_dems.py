@@ -14,6 +14,15 @@ elevation data, downloaded with ``apt-get download`` and unpacked with ``dpkg -x
 ``glacier`` r-cran-fields ``data/glacier.rda``: 8,338 points digitised from the contours of a
             real glacier (locations in km, elevations in m), gridded here by cubic
             interpolation inside their hull.
+``jacksboro`` matplotlib's ``sample_data/jacksboro_fault_dem.npz``: 344 x 403 at 3 arc-seconds
+            (~90 m), the Jacksboro fault, Tennessee: Appalachian ridge-and-valley terrain,
+            strongly anisotropic (long parallel ridges); longitude/latitude.
+``topobathy`` matplotlib's ``sample_data/topobathy.npz``: 91 x 120 at 1 arc-minute, the
+            Strait of Georgia (topography and bathymetry); longitude/latitude.
+
+The two matplotlib files ship with matplotlib (a glacimap dependency), so they need no
+registry: sites made from them were never used to choose glacimap's defaults (added in
+session 6 as held-back terrain, docs/terrain.md "Two DEMs held back").
 
 Files are cached under ``$GLACIMAP_DATA`` (default ``~/.cache/glacimap/real-dems``).
 :class:`RealDataUnavailable` says why when the registry cannot be reached; tests and
@@ -57,7 +66,9 @@ PACKAGES = {
     },
 }
 FILES = {name: Path(rel).name for files in PACKAGES.values() for name, rel in files.items()}
-NAMES = tuple(FILES)
+#: Real DEMs that ship with matplotlib (``matplotlib.cbook.get_sample_data``).
+MATPLOTLIB = {"jacksboro": "jacksboro_fault_dem.npz", "topobathy": "topobathy.npz"}
+NAMES = tuple(FILES) + tuple(MATPLOTLIB)
 
 
 class RealDataUnavailable(RuntimeError):
@@ -114,8 +125,10 @@ def load(name: str) -> xr.DataArray:
     geographic DEM, as a user's satellite product may be); ``glacier`` is gridded at 100 m
     in a local transverse Mercator frame (its locations are km in an unnamed plane).
     """
-    if name not in FILES:
+    if name not in NAMES:
         raise ValueError(f"name: expected one of {NAMES}, got {name!r}")
+    if name in MATPLOTLIB:
+        return _load_matplotlib(name)
     path = fetch() / FILES[name]
     if name in ("olinda", "lux"):
         import rasterio
@@ -144,6 +157,35 @@ def load(name: str) -> xr.DataArray:
     z = griddata(loc, zpts, (xx, yy), method="cubic")
     crs = "+proj=tmerc +lat_0=0 +lon_0=0 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
     return _array(z, x, y, crs, name)
+
+
+def _load_matplotlib(name: str) -> xr.DataArray:
+    from matplotlib import cbook
+
+    with np.load(cbook.get_sample_data(MATPLOTLIB[name], asfileobj=False)) as d:
+        if name == "jacksboro":
+            z = np.asarray(d["elevation"], float)
+            ny, nx = z.shape
+            # cell centres; the file's "ymin" is the northern edge (rows run north -> south)
+            x = float(d["xmin"]) + float(d["dx"]) * (np.arange(nx) + 0.5)
+            y = float(d["ymin"]) - float(d["dy"]) * (np.arange(ny) + 0.5)
+        else:
+            z = np.asarray(d["topo"], float)
+            x = np.asarray(d["longitude"], float) - 360.0  # 0..360 -> -180..180
+            y = np.asarray(d["latitude"], float)
+            if y[0] < y[-1]:
+                z, y = z[::-1], y[::-1]
+    return xr.DataArray(
+        z,
+        coords={"y": y, "x": x},
+        dims=("y", "x"),
+        name="elevation",
+        attrs={
+            "units": "m",
+            "crs_wkt": "EPSG:4326",
+            "source": f"real DEM {name} (matplotlib {MATPLOTLIB[name]})",
+        },
+    )
 
 
 def _array(z, x, y, crs, name) -> xr.DataArray:

@@ -122,3 +122,28 @@ def test_real_dem_both_orders():
     np.testing.assert_array_equal(
         coarse_dem(dem.sortby("y"), (8, 8)).values, coarse_dem(dem, (8, 8)).values
     )
+
+
+@pytest.mark.parametrize(
+    "name, shape, lon, lat",
+    [
+        # matplotlib sample_data/jacksboro_fault_dem.npz: 344 x 403 at 3" from -84.41375 E,
+        # rows from 36.73292 N southward (the file's own xmin/dx/ymin/dy)
+        ("jacksboro", (344, 403), (-84.41375, -84.41375 + 403 * 3 / 3600), 36.73292),
+        # matplotlib sample_data/topobathy.npz: 91 x 120, longitudes 234.02-237.98 (0-360 E)
+        ("topobathy", (91, 120), (234.0167 - 360, 237.9834 - 360), 49.98418),
+    ],
+)
+def test_matplotlib_real_dems(name, shape, lon, lat):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import real_dems
+
+    dem = real_dems.load(name)  # ships with matplotlib: never skipped
+    assert dem.shape == shape and np.isfinite(dem.values).all()
+    assert dem.attrs["crs_wkt"] == "EPSG:4326"  # degrees: a Grid refuses it, RasterMean warps
+    x, y = dem.x.values, dem.y.values
+    assert x[0] == pytest.approx(lon[0], abs=0.02) and x[-1] == pytest.approx(lon[1], abs=0.02)
+    assert y[0] == pytest.approx(lat, abs=0.02) and np.all(np.diff(y) < 0)  # north-up
+    site = real_dems.glacier_site(name)  # a 600 m site at 2 m, 25 m relief
+    assert site.shape == (300, 300)
+    assert float(site.max() - site.min()) == pytest.approx(25.0)
