@@ -1,6 +1,6 @@
-"""Wrong associations must not drag the trajectory (factorgraph/view_gate.py): views beyond
-the reprojection gate at the refined estimate are cut (or their landmark removed), counted,
-and the refinement runs again without them."""
+"""Wrong associations must not drag the trajectory (factorgraph/view_gate.py): views that
+fail the chi2 reprojection gate at the refined estimate are cut (or their landmark removed),
+counted, and the refinement runs again without them."""
 
 from __future__ import annotations
 
@@ -123,7 +123,7 @@ def _wrong_views_in_graph(loc, log, swapped_rows) -> int:
 def test_wrong_associations_are_cut_counted_and_do_not_drag_the_trajectory():
     """200 m straight traverse, ideal tracks (vision camera), 20 % of the tracks given one
     wrong late view (seed 3). Without the gate (``view_gate_rounds = 0``, the code before
-    it) 19 wrong views stay in the graph and the keyframe horizontal RMSE is 4.98 m against
+    it) 42 wrong views stay in the graph and the keyframe horizontal RMSE is 4.98 m against
     2.64 m on the clean log (measured); with it every wrong view is out of the graph,
     counted, and the RMSE is within 10 % of the clean run's (2.60 m measured)."""
     from terrain.synthetic import default_site
@@ -162,8 +162,22 @@ def test_wrong_associations_are_cut_counted_and_do_not_drag_the_trajectory():
     )
 
 
-def test_view_gate_rounds_validated():
+def test_view_gate_px_is_the_chi2_quantile():
+    from scipy.stats import chi2
+
+    from factorgraph.view_gate import view_gate_px
+
+    # reference: scipy's chi2(2) inverse survival function, an independent computation
+    for sigma, alpha in ((1.0, 1e-6), (0.5, 1e-3), (2.0, 0.05)):
+        assert view_gate_px(sigma, alpha) == pytest.approx(sigma * np.sqrt(chi2.isf(alpha, 2)))
+    assert view_gate_px(1.0, 1e-6) == pytest.approx(5.2565, abs=1e-4)
+
+
+def test_view_gate_settings_validated():
     from terrain.errors import InputError
 
     with pytest.raises(InputError, match="view_gate_rounds"):
         LocalizeParams(view_gate_rounds=-1)
+    for bad in (0.0, 1.0, -0.1):
+        with pytest.raises(InputError, match="view_gate_false_alarm"):
+            LocalizeParams(view_gate_false_alarm=bad)
