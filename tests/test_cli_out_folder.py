@@ -95,3 +95,12 @@ def test_process_twice_into_one_out_without_then_with_checkpoints(tmp_path):
     second = process(EXAMPLE, prior=prior, out=out)
     assert second.removed == ["report.html"] and not (out / "report.html").exists()
     assert sorted(second.products) == sorted(p.name for p in out.iterdir() if p.is_file())
+
+
+def test_a_missing_prior_and_an_out_that_is_a_file_name_their_option(tmp_path):
+    with pytest.raises(InputError, match=r"^--prior: expected an existing DEM file"):
+        process(EXAMPLE, prior=tmp_path / "dem.tif", out=tmp_path / "o")  # before: "source"
+    assert not (tmp_path / "o").exists()
+    (tmp_path / "f").write_text("")
+    with pytest.raises(InputError, match=r"--out: expected a folder, not a file"):
+        process(EXAMPLE, out=tmp_path / "f")  # before: "[Errno 17] File exists"

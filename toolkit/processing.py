@@ -11,6 +11,7 @@ report. ``glacimap run`` writes its simulated survey as such files and calls
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -99,6 +100,13 @@ def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
         return "constant"
     if isinstance(prior, RasterMean):
         return prior
+    if isinstance(prior, str | os.PathLike) and not Path(prior).is_file():
+        raise bad_input(
+            "--prior",
+            str(prior),
+            "an existing DEM file (GeoTIFF or any GDAL raster)",
+            "check the path",
+        )
     cfg = settings.get("prior", {})
     cells = tuple(int(c) for c in cfg.get("cells", [])) or None
     return RasterMean(prior, resampling=cfg.get("resampling", "bilinear"), cells=cells)

@@ -124,6 +124,8 @@ def output_folder(out: str | os.PathLike) -> Iterator[Path]:
     from terrain.atomic import ensure_writable_dir
 
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise bad_input("--out", str(out), "a folder, not a file", "choose another --out")
     first_new = None
     for folder in (out, *out.parents):
         if folder.exists():
