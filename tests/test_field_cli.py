@@ -62,3 +62,15 @@ def test_bad_gps_format_writes_nothing(tmp_path):
     assert isinstance(res.exception, InputError)  # glacimap's main() turns it into exit 2
     assert "--gps-format" in str(res.exception) and "nmea or gpx or rtklib" in str(res.exception)
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_localize_reads_a_field_folder(tmp_path):
+    """``glacimap localize FIELD_FOLDER`` as ``process`` reads it (before: "expected a folder
+    with meta.json"); the samples match what process's select stage gives."""
+    res = runner.invoke(app, ["localize", str(EXAMPLE), "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "GPS gps.nmea (nmea): 156 of 156 records used" in res.output
+    summary = json.loads((tmp_path / "localize_summary.json").read_text())
+    assert summary["keyframes"] == 156
+    n_rows = len((tmp_path / "samples.csv").read_text().splitlines()) - 1
+    assert n_rows == summary["selection_counts"]["kept"] > 300

@@ -30,7 +30,8 @@ _LOG_TABLES = ("keyframes", "odometry", "gps", "observations", "landmarks")
 
 def read_log_folder(log_dir: Path):
     """:func:`factorgraph.log.read_log`, with a file that pandas / pyarrow cannot parse named
-    in the message instead of a bare parser error."""
+    in the message instead of a bare parser error; a rover's field folder (``survey.json``,
+    docs/field-format.md) is read as ``glacimap process`` reads it."""
     import pandas as pd
 
     from factorgraph.log import read_log
@@ -39,6 +40,13 @@ def read_log_folder(log_dir: Path):
         raise bad_input(
             "LOG_DIR", str(log_dir), "an existing log folder", "run glacimap simulate --out DIR"
         )
+    if (log_dir / "survey.json").is_file():
+        from factorgraph.field import read_field_log
+
+        log, report = read_field_log(log_dir)
+        for line in report.lines():
+            console.print(line)
+        return log
     try:
         return read_log(log_dir)
     except InputError:
@@ -150,7 +158,12 @@ def _track_images(log, folder: Path):
 
 
 def localize_command(
-    log_dir: Annotated[Path, typer.Argument(help="Measurement log folder (glacimap simulate).")],
+    log_dir: Annotated[
+        Path,
+        typer.Argument(
+            help="Log folder (glacimap simulate) or a rover's field folder (survey.json)."
+        ),
+    ],
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/localize"),
     config: Annotated[
         Path | None,
