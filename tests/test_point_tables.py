@@ -112,3 +112,14 @@ def test_checkpoints_not_scored_are_a_warning_and_lonlat_without_crs_is_named(de
                   [(IDS[i], (lon[i], lat[i]), Z[i], []) for i in range(12)])  # fmt: skip
     with pytest.raises(InputError, match=r"look like longitude / latitude degrees.*EPSG:4326"):
         certify(dem, path)
+
+
+def test_report_draws_samples_of_any_dialect_and_skips_what_it_cannot(tmp_path):
+    from toolkit.cli.report import _sample_points
+
+    path = _write(tmp_path / "samples.csv", ["id", "x", "y", "z", "crs"], _rows([CRS]), sep=";")
+    np.testing.assert_allclose(_sample_points(path)["samples"], XY, atol=5e-5)
+    path.write_text("Longitude,Latitude,Height,crs\n-134.5,58.4,100,EPSG:4326\n")
+    assert _sample_points(path) == {}  # lon/lat: not drawn on the map (said, not a crash)
+    path.write_text("a;b\n1;2\n")
+    assert _sample_points(path) == {}  # before: numpy's "Some errors were detected" traceback

@@ -59,13 +59,28 @@ def _optional(run_dir: Path) -> dict[str, Any]:
             out["trajectory"] = {k: npz[k] for k in npz.files}
     samples = run_dir / RUN_FILES["samples"]
     if samples.is_file():
-        import numpy as np
-
-        data = np.atleast_1d(np.genfromtxt(samples, delimiter=",", names=True, dtype=float))
-        if not {"x", "y"} <= set(data.dtype.names or ()):
-            raise bad_input(samples.name, data.dtype.names, "columns x, y", "rename the header")
-        out["samples"] = np.column_stack([data["x"], data["y"]])
+        out.update(_sample_points(samples))
     return out
+
+
+def _sample_points(path: Path) -> dict[str, Any]:
+    """The sample locations to draw, read like every point table (any delimiter, header
+    aliases); a file that cannot be drawn (another layout, lon/lat) is said and skipped:
+    the samples are decoration of the report, not what it certifies."""
+    from terrain.errors import InputError
+
+    from ..certify_io import read_checkpoints
+
+    try:
+        table = read_checkpoints(path)
+    except InputError as exc:
+        console.print(f"[yellow]note:[/] {path.name} not drawn: {exc}", soft_wrap=True)
+        return {}
+    if table.crs is not None and table.crs.is_geographic:
+        console.print(f"[yellow]note:[/] {path.name} not drawn: lon/lat, not the map's CRS")
+        return {}
+    keep = ~table.nan_rows()
+    return {"samples": table.xy[keep]}
 
 
 def _certified_dem(run_dir: Path, cert_path: Path, dem: Path | None) -> Path:
