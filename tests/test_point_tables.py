@@ -123,3 +123,27 @@ def test_report_draws_samples_of_any_dialect_and_skips_what_it_cannot(tmp_path):
     assert _sample_points(path) == {}  # lon/lat: not drawn on the map (said, not a crash)
     path.write_text("a;b\n1;2\n")
     assert _sample_points(path) == {}  # before: numpy's "Some errors were detected" traceback
+
+
+def test_certify_names_the_crs_it_reprojected_from_and_to(dem, tmp_path):
+    import rasterio
+    from pyproj import Transformer
+    from typer.testing import CliRunner
+
+    from terrain import Grid as _Grid
+    from toolkit.cli import app
+
+    grid = _Grid.from_dataarray(dem["elevation"])
+    with rasterio.open(
+        tmp_path / "dem.tif", "w", driver="GTiff", width=grid.nx, height=grid.ny, count=1,
+        dtype="float64", crs=CRS, transform=rasterio.transform.from_origin(
+            grid.bounds[0], grid.bounds[3], *grid.resolution),
+    ) as dst:  # fmt: skip
+        dst.write(np.asarray(dem["elevation"].values, float), 1)
+    lon, lat = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True).transform(*XY.T)
+    path = _write(tmp_path / "ll.csv", ["id", "lon", "lat", "height", "crs"],
+                  [(IDS[i], (lon[i], lat[i]), Z[i], ["EPSG:4326"]) for i in range(12)])  # fmt: skip
+    res = CliRunner().invoke(app, ["certify", str(tmp_path / "dem.tif"), str(path)])
+    assert res.exit_code == 0, res.output
+    flat = " ".join(res.output.split())
+    assert "reprojected from WGS 84 to WGS 84 / UTM zone 8N (pyproj)" in flat  # not WKT text

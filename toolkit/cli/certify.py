@@ -32,7 +32,10 @@ def print_certificate(cert: dict[str, Any]) -> None:
         console.print(f"[bold yellow]warning:[/] {escape(warning)}", highlight=False)
     moved = cert["checkpoints"].get("reprojected")
     if moved:
-        console.print(f"checkpoints reprojected from {moved['from']} to {moved['to']} (pyproj)")
+        from pyproj import CRS
+
+        names = [CRS.from_user_input(moved[k]).name for k in ("from", "to")]  # not a WKT page
+        console.print(f"checkpoints reprojected from {names[0]} to {names[1]} (pyproj)")
     cal = cert.get("calibration")
     if cal:
         console.print(
