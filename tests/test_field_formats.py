@@ -250,3 +250,29 @@ def test_rover_tables_from_a_european_spreadsheet(tmp_path):
     np.testing.assert_array_equal(log.tilt_up, ref.tilt_up)
     np.testing.assert_array_equal(log.obs_uv, ref.obs_uv)
     assert rep.tilt == "used"
+
+
+def test_gps_file_recognised_by_its_content(tmp_path):
+    """A logger's NMEA saved as ``.txt`` (no gps entry in survey.json), and an RTKLIB solution
+    named in gps.file without gps.format: found and read by content (before: "exactly one of
+    *.nmea, ..." and "gps.format ... got None")."""
+    import json
+    import shutil
+
+    from factorgraph import read_field_log
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    folder = tmp_path / "field"
+    shutil.copytree(example, folder)
+    (folder / "gps.nmea").rename(folder / "rover_log.txt")
+    man = json.loads((folder / "survey.json").read_text())
+    man.pop("gps")
+    (folder / "survey.json").write_text(json.dumps(man))
+    log, rep = read_field_log(folder)
+    assert rep.gps_file == "rover_log.txt" and rep.gps_format == "nmea" and rep.gps_used == 156
+    x, y, z = TO_ECEF.transform(LON, LAT, H)
+    _write(tmp_path / "solution.txt", "xyz", np.column_stack([x, y, z]))
+    from factorgraph.field.reader import sniff_gps_format
+
+    assert sniff_gps_format(tmp_path / "solution.txt") == "rtklib"
+    assert sniff_gps_format(folder / "odometry.csv") is None

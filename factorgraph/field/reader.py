@@ -76,6 +76,26 @@ def _manifest(folder: Path) -> dict[str, Any]:
     return man
 
 
+def sniff_gps_format(path: Path) -> str | None:
+    """``nmea``, ``gpx`` or ``rtklib`` from the first kilobytes of a file (loggers write NMEA
+    as ``.txt``, ``.log`` or ``.ubx.nmea``; RTKLIB as ``.txt``); None when none fits."""
+    try:
+        head = path.read_bytes()[:8192].decode("utf-8", errors="replace")
+    except OSError:
+        return None
+    lines = [ln.strip() for ln in head.splitlines() if ln.strip()][:50]
+    if "<gpx" in head[:2000]:
+        return "gpx"
+    if (
+        lines
+        and lines[0].startswith("%")
+        and any(ln.startswith("%") and ("GPST" in ln or "UTC" in ln) for ln in lines)
+    ):
+        return "rtklib"
+    nmea = sum(1 for ln in lines if "$" in ln and "*" in ln and "GGA" in ln)
+    return "nmea" if nmea else None
+
+
 def _gps_file(folder: Path, spec: dict[str, Any]) -> tuple[Path, str]:
     if "file" in spec:
         path = folder / spec["file"]
@@ -83,6 +103,12 @@ def _gps_file(folder: Path, spec: dict[str, Any]) -> tuple[Path, str]:
             raise bad_input(f"{MANIFEST} gps.file", spec["file"], "an existing file", "")
     else:
         found = sorted(p for p in folder.iterdir() if p.suffix.lower() in GPS_SUFFIXES)
+        if not found:  # a logger's .txt / .log: recognised by its content
+            found = sorted(
+                p for p in folder.iterdir()
+                if p.is_file() and p.suffix.lower() in (".txt", ".log", ".ubx", ".dat", "")
+                and sniff_gps_format(p)
+            )  # fmt: skip
         if len(found) != 1:
             raise bad_input(
                 "GPS file",
@@ -91,7 +117,7 @@ def _gps_file(folder: Path, spec: dict[str, Any]) -> tuple[Path, str]:
                 'name it in survey.json: "gps": {"file": ...}',
             )
         path = found[0]
-    fmt = spec.get("format") or GPS_SUFFIXES.get(path.suffix.lower())
+    fmt = spec.get("format") or GPS_SUFFIXES.get(path.suffix.lower()) or sniff_gps_format(path)
     if fmt not in ("nmea", "gpx", "rtklib"):
         raise bad_input("gps.format", fmt, "'nmea', 'gpx' or 'rtklib'", f"set it for {path.name}")
     return path, fmt
