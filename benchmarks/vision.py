@@ -27,13 +27,17 @@ Cases
     peak RSS before / after the online pass, selection.
 ``gateN`` (e.g. ``gate4``)
     ``chain_sunny``'s frames (re-rendered when absent) tracked again with the current
-    front-end, localizer gate N px.
+    front-end, localizer gate N px; ``--wrong-in-gate`` adds the wrong-match rows (view gate
+    off / on) of those tracks: the full-survey wrong-match chain without rendering.
 ``chain_sunny``
     The default scenario (embedded TOML: 600 m site, 4-swath lawnmower, keyframes every 2 s,
     GPS 0.5 Hz, seed 0) with the vision camera: ideal tracks vs rendered sunny-snow images
     tracked by the default front-end, on the same log (same GPS, odometry, tilt). Also the
     image tracks with 10 % of the tracks given one wrong association (an observation swapped
-    with another track's in the same keyframe: the repeated-texture failure). Per row:
+    with another track's in the same keyframe: the repeated-texture failure), localized with
+    the view gate off (``[localize] view_gate_rounds = 0``) and on (the default); those rows
+    also count the wrong observations left in the final graph (``--wrong-fracs 0.1 0.2``:
+    a row pair per fraction). Per row:
     landmarks in the graph and selected, graph landmarks seen per keyframe, landmark NEES
     (3-D, full marginal) and share within 2 sigma (NEES < chi2(3) 95.45 %), keyframe
     horizontal / vertical RMSE, GPS-only horizontal RMSE, map RMSE and 95 % coverage of the
@@ -169,7 +173,10 @@ def _map_metrics(sel, truth, scenario) -> dict[str, float]:
     return {"map_rmse_m": m["rmse"], "map_coverage_95": m["coverage_95"]}
 
 
-def _chain_row(name, log, truth, scenario) -> dict[str, Any]:
+def _chain_row(name, log, truth, scenario, wrong_rows=None) -> dict[str, Any]:
+    """One chain row; ``wrong_rows`` (observation rows of ``log`` given a wrong association)
+    adds how many of them are projection factors of the final graph and the reprojection
+    errors of wrong and correct views there (:func:`_wrong_views`)."""
     from scipy.stats import chi2
 
     from factorgraph import gps_only, horizontal_rmse
@@ -203,12 +210,19 @@ def _chain_row(name, log, truth, scenario) -> dict[str, Any]:
         "retry_recovered": int(loc.refine.get("retry_recovered", 0)),
         "landmark_rmse_3d_m": float(np.sqrt((e**2).sum(1).mean())),
         "horizontal_rmse_m": s["horizontal_rmse_m"],
+        "online_horizontal_rmse_m": float(
+            np.sqrt(((loc.online_xyz - log.truth["xyz"])[:, :2] ** 2).sum(1).mean())
+        ),
         "vertical_rmse_m": s["vertical_rmse_m"],
         "gps_only_horizontal_rmse_m": horizontal_rmse(gps_only(log).xyz, log.truth["xyz"]),
         "localize_s": loc_s,
         "marginals_s": s["marginals_s"],
         "never_initialised": dict(loc.dropped),
+        # wrong associations cut at the refined estimate (factorgraph/view_gate.py)
+        "view_gate": dict(loc.refine.get("view_gate", {})),
     }
+    if wrong_rows is not None:
+        row.update(_wrong_views(loc, log, wrong_rows))
     t0 = time.perf_counter()
     row.update(_map_metrics(sel, truth, scenario))
     row["reconstruct_s"] = time.perf_counter() - t0
@@ -216,9 +230,40 @@ def _chain_row(name, log, truth, scenario) -> dict[str, Any]:
     return row
 
 
+def _wrong_views(loc, log, rows) -> dict[str, Any]:
+    """Which of the observation ``rows`` of ``log`` (the wrong associations) are projection
+    factors of the result's final graph, and the reprojection error (px) at the final
+    estimate of those and of the other (correct) views: median / p90 / p99."""
+    import gtsam
+
+    from factorgraph.view_gate import camera_poses, projection_views, view_residuals_px
+
+    v = projection_views(loc.graph)
+    k = np.array([gtsam.Symbol(int(x)).index() for x in v["pose"]], dtype=np.int64)
+    index = {
+        (int(a), int(b)): i for i, (a, b) in enumerate(zip(log.obs_k, log.obs_id, strict=True))
+    }
+    in_graph = np.array([index[(int(a), int(b))] for a, b in zip(k, v["lid"], strict=True)])
+    wrong = np.isin(in_graph, rows)
+    cam = log.sensors.camera
+    R, c = camera_poses(loc.estimate, v["pose"], gtsam.Pose3(cam.body_T_camera()))
+    pts = np.array([loc.estimate.atPoint3(int(key)) for key in v["landmark"]]).reshape(-1, 3)
+    err = view_residuals_px(R, c, pts, v["uv"], cam.calibration().K())
+
+    def q(e):
+        return [float(x) for x in np.percentile(e, [50, 90, 99])] if e.size else None
+
+    return {
+        "wrong_views_in_graph": int(wrong.sum()),
+        "wrong_view_px_p50_p90_p99": q(err[wrong]),
+        "correct_view_px_p50_p90_p99": q(err[~wrong]),
+    }
+
+
 def _wrong_matches(tracks, frac: float, rng):
     """``tracks`` with ``frac`` of the tracks given one wrong association: an interior
-    observation exchanged with another track's observation in the same keyframe."""
+    observation exchanged with another track's observation in the same keyframe. Returns
+    the tracks, the number of tracks given a wrong view and the observation rows changed."""
     k, lid, uv = tracks.k.copy(), tracks.landmark_id.copy(), tracks.uv.copy()
     ids = np.unique(lid)
     hit = rng.choice(ids, int(frac * ids.size), replace=False)
@@ -234,11 +279,41 @@ def _wrong_matches(tracks, frac: float, rng):
         o = rng.choice(others)
         uv[[r, o]] = uv[[o, r]]
         swapped += 1
-    return dataclasses.replace(tracks, uv=uv), swapped
+    # rows whose pixel changed (a row swapped twice can come back to its own value)
+    rows_changed = np.flatnonzero(np.any(uv != tracks.uv, axis=1))
+    return dataclasses.replace(tracks, uv=uv), swapped, rows_changed
+
+
+def _wrong_match_rows(label, tracks, img_log, truth, scenario, fracs, seed) -> list[dict]:
+    """Chain rows of ``img_log`` (the log of ``tracks``) with ``frac`` of the tracks given
+    one wrong association, for each of ``fracs``: localized without the view gate (the
+    localizer before it) and with it (the default)."""
+    from factorgraph.vision import attach_tracks
+
+    full = np.full((tracks.n_tracks, 3), np.nan)
+    full[img_log.truth["landmark_id"]] = img_log.truth["landmark_xyz"]
+    off = {**scenario, "localize": {**scenario["localize"], "view_gate_rounds": 0}}
+    rows = []
+    for frac in fracs:
+        bad, n, changed = _wrong_matches(tracks, frac, np.random.default_rng(seed))
+        wrong_log = attach_tracks(img_log, bad, full)
+        what = "wrong matches" if frac == 0.10 else f"{100 * frac:g} % wrong matches"
+        for gate, scen in (("view gate off", off), ("view gate", scenario)):
+            r = _chain_row(f"{label} SIFT + {what}, {gate}", wrong_log, truth, scen, changed)
+            r["wrong_fraction"] = frac
+            r["tracks_with_wrong_match"] = n
+            r["wrong_observations"] = int(changed.size)
+            rows.append(r)
+    return rows
 
 
 def case_chain(
-    scene: str, swaths: int, clahe_both: bool, bounds=None, seed: int = 0
+    scene: str,
+    swaths: int,
+    clahe_both: bool,
+    bounds=None,
+    seed: int = 0,
+    wrong_fracs: tuple[float, ...] = (0.10,),
 ) -> dict[str, Any]:
     from factorgraph import SensorSuite
     from factorgraph.vision import (
@@ -275,15 +350,7 @@ def case_chain(
     row["render_track_s"] = chain_s
     rows.append(row)
     if not clahe_both:
-        bad, n = _wrong_matches(run.tracks, 0.10, np.random.default_rng(seed))
-        xyz = run.log.truth["landmark_xyz"]
-        full = np.full((run.tracks.n_tracks, 3), np.nan)
-        full[run.log.truth["landmark_id"]] = xyz
-        r = _chain_row(
-            f"{scene} SIFT + wrong matches", attach_tracks(run.log, bad, full), truth, scenario
-        )
-        r["tracks_with_wrong_match"] = n
-        rows.append(r)
+        rows += _wrong_match_rows(scene, run.tracks, run.log, truth, scenario, wrong_fracs, seed)
     else:
         from factorgraph.vision import read_frames
 
@@ -304,9 +371,10 @@ def case_chain(
     }
 
 
-def case_gate(gate_px: float) -> dict[str, Any]:
+def case_gate(gate_px: float, wrong_fracs: tuple[float, ...] = ()) -> dict[str, Any]:
     """``chain_sunny`` with the localizer's triangulation gate at ``gate_px``: the frames
-    ``chain_sunny`` wrote are tracked again (rendered first when absent)."""
+    ``chain_sunny`` wrote are tracked again (rendered first when absent); with
+    ``wrong_fracs`` also the wrong-match rows (view gate off / on) of those tracks."""
     from factorgraph import SensorSuite, simulate_traverse
     from factorgraph.vision import (
         SCENES,
@@ -337,12 +405,13 @@ def case_gate(gate_px: float) -> dict[str, Any]:
         read_frames(frames_dir, log.t, sensors.camera), sensors.camera, odometry=log.odometry
     )
     xyz, _ = track_truth(ren, tr, ren.poses)
+    img_log = attach_tracks(log, tr, xyz)
     rows = [
         _chain_row(f"ideal tracks, gate {gate_px:g} px", log, truth, scenario),
-        _chain_row(
-            f"sunny_snow SIFT, gate {gate_px:g} px", attach_tracks(log, tr, xyz), truth, scenario
-        ),
+        _chain_row(f"sunny_snow SIFT, gate {gate_px:g} px", img_log, truth, scenario),
     ]
+    label = f"sunny_snow, gate {gate_px:g} px,"
+    rows += _wrong_match_rows(label, tr, img_log, truth, scenario, wrong_fracs, seed)
     return {"rows": rows, "gate_px": gate_px, "seed": seed}
 
 
@@ -467,6 +536,7 @@ CHAIN_COLS = [
     ("landmark_nees", "NEES", ".2f"),
     ("landmark_in_2sigma", "in 2sig", ".2f"),
     ("horizontal_rmse_m", "horiz m", ".2f"),
+    ("online_horizontal_rmse_m", "online h m", ".2f"),
     ("vertical_rmse_m", "vert m", ".2f"),
     ("gps_only_horizontal_rmse_m", "GPS-only m", ".2f"),
     ("map_rmse_m", "map RMSE", ".3f"),
@@ -507,6 +577,19 @@ def main() -> None:
         help="chain_overcast runs on this part of the default site (west south east north)",
     )
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--wrong-fracs",
+        type=float,
+        nargs="+",
+        default=[0.10],
+        help="chain cases: fractions of the tracks given one wrong association (one row "
+        "pair, view gate off / on, per fraction)",
+    )
+    ap.add_argument(
+        "--wrong-in-gate",
+        action="store_true",
+        help="gateN cases: add the wrong-match rows (--wrong-fracs) of the re-tracked frames",
+    )
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vision.json"))
     args = ap.parse_args()
     results: dict[str, Any] = {}
@@ -521,7 +604,8 @@ def main() -> None:
             res = in_subprocess(case_scale, float(case[5:]), args.seed)
             cols = SCALE_COLS
         elif case.startswith("gate"):  # e.g. gate8: chain_sunny with an 8 px gate
-            res = in_subprocess(case_gate, float(case[4:]))
+            fracs = tuple(args.wrong_fracs) if args.wrong_in_gate else ()
+            res = in_subprocess(case_gate, float(case[4:]), fracs)
             cols = CHAIN_COLS
         elif case == "headings":
             res = in_subprocess(case_headings, 20, args.seed)
@@ -556,7 +640,13 @@ def main() -> None:
             swaths = 4 if case == "chain_sunny" else args.overcast_swaths
             bounds = None if case == "chain_sunny" else args.overcast_bounds
             res = in_subprocess(
-                case_chain, scene, swaths, case == "chain_overcast", bounds, args.seed
+                case_chain,
+                scene,
+                swaths,
+                case == "chain_overcast",
+                bounds,
+                args.seed,
+                tuple(args.wrong_fracs),
             )
             if args.seed:  # other seeds: their own entry in the results
                 case = f"{case}_seed{args.seed}"

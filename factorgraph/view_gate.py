@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "camera_poses",
     "drop_landmarks_at_cameras",
     "gate_views",
     "gated_refinement",
@@ -92,8 +93,10 @@ def projection_views(graph) -> dict[str, np.ndarray]:
     }
 
 
-def _cameras(estimate, pose_keys: np.ndarray, bTc) -> tuple[np.ndarray, np.ndarray]:
-    """World-from-camera rotations (n, 3, 3) and camera centres (n, 3) of ``pose_keys``."""
+def camera_poses(estimate, pose_keys: np.ndarray, bTc) -> tuple[np.ndarray, np.ndarray]:
+    """World-from-camera rotations (n, 3, 3) and camera centres (n, 3, m) of the body poses
+    ``pose_keys`` (n,) (gtsam keys) in ``estimate`` with camera mounting ``bTc``
+    (gtsam.Pose3)."""
     uniq, inv = np.unique(pose_keys, return_inverse=True)
     R = np.empty((uniq.size, 3, 3))
     c = np.empty((uniq.size, 3))
@@ -185,7 +188,7 @@ def gate_views(
     }
     if v["index"].size == 0:
         return graph, estimate, report
-    R, c = _cameras(estimate, v["pose"], bTc)
+    R, c = camera_poses(estimate, v["pose"], bTc)
     ulm, inv = np.unique(v["landmark"], return_inverse=True)
     pts = np.array([estimate.atPoint3(int(k)) for k in ulm]).reshape(-1, 3)
     Kmat = calibration.K()
