@@ -276,3 +276,18 @@ def test_gps_file_recognised_by_its_content(tmp_path):
 
     assert sniff_gps_format(tmp_path / "solution.txt") == "rtklib"
     assert sniff_gps_format(folder / "odometry.csv") is None
+
+
+def test_map_crs_far_from_the_survey_is_a_warning():
+    """UTM 33N (12-18 E) for a site at 134.5 W projects, with a 3.7 % scale error (pyproj
+    get_factors): said in words with the site's zone; the site's own zone and a polar
+    stereographic CRS within its area, or the next zone (0.09 %) say nothing."""
+    from factorgraph.field.fixes import crs_area_warning
+
+    msg = crs_area_warning(LON, LAT, "EPSG:32633")
+    assert "EPSG:32633's area of use (12 to 18 E" in msg and "off by 3.7 %" in msg
+    assert msg.endswith("the site's UTM zone is EPSG:32608")
+    assert crs_area_warning(LON, LAT, "EPSG:32608") is None
+    assert crs_area_warning(LON, LAT, "EPSG:32609") is None  # 2.5 deg past its edge: 0.09 %
+    assert crs_area_warning(LON, LAT, "EPSG:3338") is None  # Alaska Albers (crosses 180)
+    assert crs_area_warning(LON, LAT + 15.0, "EPSG:3413") is None  # 73 N, polar stereo

@@ -215,6 +215,8 @@ def _process(
             cert = certify_stage(rec, cps, settings, seed)
             cert["localization"] = localization_summary(loc, sel)
             cert["ingest"] = ingest_report
+            for w in ingest_report.get("warnings", []):  # e.g. a map CRS far from the site
+                cert.setdefault("warnings", []).append(w)
             cert["inputs"] = {
                 "log": str(log) if not isinstance(log, MeasurementLog) else "in memory",
                 "prior": None if prior is None else str(getattr(prior, "name", prior)),

@@ -16,7 +16,14 @@ import numpy as np
 
 from terrain.errors import bad_input
 
-__all__ = ["UERE_M", "VERTICAL_FACTOR", "GPSFixes", "project_fixes", "sigma_from_dop"]
+__all__ = [
+    "UERE_M",
+    "VERTICAL_FACTOR",
+    "GPSFixes",
+    "crs_area_warning",
+    "project_fixes",
+    "sigma_from_dop",
+]
 
 #: Per-axis horizontal 1-sigma (m) at HDOP 1 by solution kind: the user-equivalent range
 #: error. Autonomous SPS ~2.5 m, SBAS / DGPS ~0.8 m, RTK float ~0.3 m, RTK fixed ~0.02 m
@@ -181,3 +188,39 @@ def project_fixes(fixes: GPSFixes, gps_crs: str, map_crs: str) -> np.ndarray:
             "pick the UTM zone of the site",
         )
     return np.column_stack([e, n, fixes.h_m])
+
+
+def crs_area_warning(
+    lon_deg: np.ndarray, lat_deg: np.ndarray, map_crs: str, max_scale_error: float = 0.002
+) -> str | None:
+    """Words when the survey lies outside the map CRS's area of use (EPSG's bounds) and the
+    CRS's scale error there exceeds ``max_scale_error`` (0.2 %: twice UTM's worst inside a
+    zone, 0.1 % at its edge on the equator; a site just across a zone boundary is common and
+    fine), with the site's UTM zone; None otherwise.
+
+    A CRS outside its area still projects, but with a distorted scale (UTM 33N at 134.5 W,
+    58.4 N: 3.7 %, pyproj ``get_factors``): the map's metres are not metres."""
+    from pyproj import CRS, Proj
+    from pyproj.aoi import AreaOfInterest
+    from pyproj.database import query_utm_crs_info
+
+    crs = CRS.from_user_input(map_crs)
+    area = crs.area_of_use
+    if area is None:
+        return None
+    lon, lat = float(np.median(lon_deg)), float(np.median(lat_deg))
+    w, s, e, n = area.west, area.south, area.east, area.north
+    in_lon = (w <= lon <= e) if w <= e else (lon >= w or lon <= e)  # crossing 180
+    if in_lon and s <= lat <= n:
+        return None
+    f = Proj(crs).get_factors(lon, lat)
+    scale = max(abs(f.meridional_scale - 1.0), abs(f.parallel_scale - 1.0))
+    if scale <= max_scale_error:
+        return None
+    utm = query_utm_crs_info("WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat))
+    hint = f"; the site's UTM zone is EPSG:{utm[0].code}" if utm else ""
+    return (
+        f"the map CRS {crs.to_string()}'s area of use ({w:g} to {e:g} E, {s:g} to {n:g} N) "
+        f"misses this survey at {lon:.3f} E, {lat:.3f} N: its scale is off by "
+        f"{100 * scale:.1f} % there{hint}"
+    )

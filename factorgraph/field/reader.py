@@ -22,7 +22,7 @@ from terrain.errors import bad_input
 from ..log import MeasurementLog
 from ..sensors import SensorSuite
 from .clock import check_overlap, estimate_clock_offset
-from .fixes import GPSFixes, project_fixes
+from .fixes import GPSFixes, crs_area_warning, project_fixes
 from .gate import gross_outliers
 from .gpx import read_gpx
 from .intrinsics import read_camera, undistort
@@ -197,6 +197,9 @@ def read_field_log(
     rep.gps_file, rep.gps_format, rep.gps_records = gps_path.name, fmt, fixes.n_records
     skipped: Counter = Counter(fixes.skipped)
     enh = project_fixes(fixes, man["gps"].get("crs", "EPSG:4979"), map_crs)
+    area = crs_area_warning(fixes.lon_deg, fixes.lat_deg, map_crs)
+    if area:
+        rep.warnings.append(area)
     lever = np.asarray(man.get("lever_arm_m", [0.0, 0.0, 0.0]), float)
     if lever.shape != (3,) or not np.isfinite(lever).all() or np.hypot(*lever[:2]) > 1e-3:
         raise bad_input(

@@ -49,6 +49,8 @@ class IngestReport:
         ``stops.csv`` (stops on ground-control points): ``file``, ``rows``, stop
         ``keyframes``, the ``points`` stood on and the rows ``skipped`` by reason; ``{}``
         without the file.
+    warnings : list of str
+        What was read but looks wrong (a map CRS whose area of use misses the survey).
     """
 
     gps_file: str = ""
@@ -68,6 +70,7 @@ class IngestReport:
     camera: str = ""
     lever_arm_m: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     stops: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def n_skipped(self) -> int:
@@ -103,4 +106,5 @@ class IngestReport:
                 f"control points ({', '.join(st['points'][:8])})"
             )
             out += [f"  skipped {n} stop rows: {r}" for r, n in sorted(st["skipped"].items())]
+        out += [f"warning: {w}" for w in self.warnings]
         return out
