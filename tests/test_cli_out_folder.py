@@ -104,3 +104,19 @@ def test_a_missing_prior_and_an_out_that_is_a_file_name_their_option(tmp_path):
     (tmp_path / "f").write_text("")
     with pytest.raises(InputError, match=r"--out: expected a folder, not a file"):
         process(EXAMPLE, out=tmp_path / "f")  # before: "[Errno 17] File exists"
+
+
+def test_bounds_that_miss_every_sample_are_named():
+    """--bounds in the wrong CRS or order (here 0 0 1000 1000 for a UTM site) used to fail
+    later with a resolution or prior-footprint message, or map nothing but the mean."""
+    import numpy as np
+
+    from terrain import ElevationSamples
+    from toolkit.stages import map_grid
+
+    xy = np.array([[526240.0, 6475250.0], [526360.0, 6475320.0], [526300.0, 6475280.0]])
+    data = ElevationSamples(xy, np.zeros(3), np.full(3, 0.01), crs="EPSG:32608")
+    with pytest.raises(InputError, match=r"--bounds.*holding some of the 3 samples.*526240.0"):
+        map_grid((0, 0, 1000, 1000), 2.0, "EPSG:32608", data)
+    grid = map_grid((526200, 6475200, 526300, 6475300), 2.0, "EPSG:32608", data)  # 2 inside
+    assert grid.shape == (50, 50)

@@ -75,6 +75,18 @@ def map_grid(
         hi = np.ceil(samples.xy.max(axis=0) / resolution) * resolution
         hi = np.maximum(hi, lo + resolution)
         bounds = (lo[0], lo[1], hi[0], hi[1])
+    elif samples is not None and samples.n > 0:
+        w, s, e, n = (float(b) for b in bounds)
+        x, y = samples.xy[:, 0], samples.xy[:, 1]
+        if not ((x >= w) & (x <= e) & (y >= s) & (y <= n)).any():
+            box = ", ".join(f"{v:.1f}" for v in (x.min(), y.min(), x.max(), y.max()))
+            raise bad_input(
+                "--bounds",
+                f"({w:g}, {s:g}, {e:g}, {n:g})",
+                f"a map extent (W S E N, m, {crs}) holding some of the {samples.n} samples "
+                f"(their box: {box})",
+                "check the order W S E N and that the bounds are in the survey's CRS",
+            )
     return Grid.from_bounds(tuple(float(b) for b in bounds), float(resolution), crs)
 
 
