@@ -120,3 +120,35 @@ def test_bounds_that_miss_every_sample_are_named():
         map_grid((0, 0, 1000, 1000), 2.0, "EPSG:32608", data)
     grid = map_grid((526200, 6475200, 526300, 6475300), 2.0, "EPSG:32608", data)  # 2 inside
     assert grid.shape == (50, 50)
+
+
+def test_reconstruct_twice_into_one_out_leaves_no_stale_report(tmp_path):
+    import numpy as np
+
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(0, 200, (150, 2)) + [526000, 6475000]
+    z = 100 + 0.05 * (xy[:, 0] - 526000) + rng.normal(0, 0.05, 150)
+    rows = "\n".join(
+        f"{a:.3f},{b:.3f},{c:.3f},0.0025,EPSG:32608" for (a, b), c in zip(xy, z, strict=True)
+    )
+    (tmp_path / "s.csv").write_text("x,y,z,z_var,crs\n" + rows + "\n")
+    cp = "\n".join(f"{a:.3f},{b:.3f},{100 + 0.05 * (a - 526000):.3f}" for a, b in xy[:25])
+    (tmp_path / "cp.csv").write_text("x,y,z\n" + cp + "\n")
+    args = [
+        "reconstruct",
+        str(tmp_path / "s.csv"),
+        "--resolution",
+        "10",
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    runner = CliRunner()
+    first = runner.invoke(app, [*args, "--checkpoints", str(tmp_path / "cp.csv")])
+    assert first.exit_code == 0, first.output
+    assert (tmp_path / "o" / "report.html").is_file()
+    second = runner.invoke(app, args)
+    assert second.exit_code == 0, second.output
+    assert not (tmp_path / "o" / "report.html").exists()  # before: the first run's, stale
+    assert "removed report.html" in " ".join(second.output.split())
+    listed = json.loads((tmp_path / "o" / "reconstruct_summary.json").read_text())["products"]
+    assert sorted(listed) == sorted(p.name for p in (tmp_path / "o").iterdir())

@@ -15,6 +15,8 @@ from terrain.atomic import atomic_path, ensure_writable_dir
 from terrain.errors import bad_input
 
 console = Console()
+#: What ``reconstruct SAMPLES.csv`` wrote (the next run into --out replaces it all).
+SUMMARY = "reconstruct_summary.json"
 
 
 def _print_demo(result) -> None:
@@ -126,7 +128,7 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
     from terrain.errors import DegenerateFitWarning
 
     from ..config import load_scenario
-    from ..export._files import staged_folder
+    from ..export._files import previous_products, remove_stale, staged_folder
     from ..processing import prior_mean
     from ..products import write_map_products
     from ..samples_io import read_samples
@@ -171,9 +173,14 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
         from ..certify import heldout_block
 
         cert = {"seed": seed, "heldout_calibration": heldout_block(rec.heldout)}
+    before = previous_products(out_dir, SUMMARY)
     with staged_folder(out_dir) as tmp:
         write_map_products(tmp, rec, cert, settings)
-        written = sorted(p.name for p in tmp.iterdir())
+        written = sorted([p.name for p in tmp.iterdir()] + [SUMMARY])
+        summary = {"seed": seed, "samples": data.n, "grid": list(grid.shape), "products": written}
+        with atomic_path(tmp / SUMMARY) as path:
+            path.write_text(json.dumps(summary, indent=2))
+    removed = remove_stale(out_dir, before, written)
     table_out = Table(title=f"glacimap reconstruct — seed {seed} — {out_dir}")
     table_out.add_column("quantity")
     table_out.add_column("value", justify="right")
@@ -188,6 +195,8 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
         certificate_rows(table_out, cert)
     console.print(table_out)
     console.print("wrote " + ", ".join(written))
+    if removed:  # a run with --checkpoints before: its report.html described another map
+        console.print(f"removed {', '.join(removed)} of an earlier run into {out_dir}")
 
 
 def _reverted_fraction(rec) -> float:
