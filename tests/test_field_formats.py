@@ -291,3 +291,21 @@ def test_map_crs_far_from_the_survey_is_a_warning():
     assert crs_area_warning(LON, LAT, "EPSG:32609") is None  # 2.5 deg past its edge: 0.09 %
     assert crs_area_warning(LON, LAT, "EPSG:3338") is None  # Alaska Albers (crosses 180)
     assert crs_area_warning(LON, LAT + 15.0, "EPSG:3413") is None  # 73 N, polar stereo
+
+
+def test_survey_without_a_crs_names_the_sites_utm_zone(tmp_path):
+    import json
+    import shutil
+
+    from factorgraph import read_field_log
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    folder = tmp_path / "field"
+    shutil.copytree(example, folder)
+    man = json.loads((folder / "survey.json").read_text())
+    man.pop("crs")
+    (folder / "survey.json").write_text(json.dumps(man))
+    # before: "Fix: pass crs= or set crs in survey.json" (glacimap process has no --crs)
+    with pytest.raises(InputError, match=r'survey.json crs.*add "crs": "EPSG:32608"'):
+        read_field_log(folder)
+    assert read_field_log(folder, crs="EPSG:32608")[0].crs == "EPSG:32608"

@@ -23,6 +23,7 @@ __all__ = [
     "crs_area_warning",
     "project_fixes",
     "sigma_from_dop",
+    "utm_zone",
 ]
 
 #: Per-axis horizontal 1-sigma (m) at HDOP 1 by solution kind: the user-equivalent range
@@ -201,8 +202,6 @@ def crs_area_warning(
     A CRS outside its area still projects, but with a distorted scale (UTM 33N at 134.5 W,
     58.4 N: 3.7 %, pyproj ``get_factors``): the map's metres are not metres."""
     from pyproj import CRS, Proj
-    from pyproj.aoi import AreaOfInterest
-    from pyproj.database import query_utm_crs_info
 
     crs = CRS.from_user_input(map_crs)
     area = crs.area_of_use
@@ -217,10 +216,19 @@ def crs_area_warning(
     scale = max(abs(f.meridional_scale - 1.0), abs(f.parallel_scale - 1.0))
     if scale <= max_scale_error:
         return None
-    utm = query_utm_crs_info("WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat))
-    hint = f"; the site's UTM zone is EPSG:{utm[0].code}" if utm else ""
+    hint = f"; the site's UTM zone is {utm_zone(lon_deg, lat_deg)}"
     return (
         f"the map CRS {crs.to_string()}'s area of use ({w:g} to {e:g} E, {s:g} to {n:g} N) "
         f"misses this survey at {lon:.3f} E, {lat:.3f} N: its scale is off by "
         f"{100 * scale:.1f} % there{hint}"
     )
+
+
+def utm_zone(lon_deg: np.ndarray, lat_deg: np.ndarray) -> str:
+    """``EPSG:326zz`` / ``EPSG:327zz``: the WGS 84 UTM zone of the fixes' median position."""
+    from pyproj.aoi import AreaOfInterest
+    from pyproj.database import query_utm_crs_info
+
+    lon, lat = float(np.median(lon_deg)), float(np.median(lat_deg))
+    info = query_utm_crs_info("WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat))
+    return f"EPSG:{info[0].code}"

@@ -22,7 +22,7 @@ from terrain.errors import bad_input
 from ..log import MeasurementLog
 from ..sensors import SensorSuite
 from .clock import check_overlap, estimate_clock_offset
-from .fixes import GPSFixes, crs_area_warning, project_fixes
+from .fixes import GPSFixes, crs_area_warning, project_fixes, utm_zone
 from .gate import gross_outliers
 from .gpx import read_gpx
 from .intrinsics import read_camera, undistort
@@ -182,8 +182,6 @@ def read_field_log(
     man = _manifest(folder)
     sensors = SensorSuite.from_dict(man.get("sensors", {}) or {})
     map_crs = crs or man.get("crs")
-    if not map_crs:
-        raise bad_input("crs", None, "the map CRS", f"pass crs= or set crs in {MANIFEST}")
     rep = IngestReport()
     t_kf, odom = read_odometry(folder / man.get("odometry", "odometry.csv"))
     step = np.linalg.norm(odom[:, 3:], axis=1)
@@ -196,6 +194,14 @@ def read_field_log(
     fixes = _read_gps(gps_path, fmt, man["gps"])
     rep.gps_file, rep.gps_format, rep.gps_records = gps_path.name, fmt, fixes.n_records
     skipped: Counter = Counter(fixes.skipped)
+    if not map_crs:  # never guessed: the error names the site's UTM zone to write in
+        raise bad_input(
+            f"{MANIFEST} crs",
+            None,
+            "the map CRS (projected, metres)",
+            f'add "crs": "{utm_zone(fixes.lon_deg, fixes.lat_deg)}" (the UTM zone of the GPS '
+            "fixes) or the national grid you map in",
+        )
     enh = project_fixes(fixes, man["gps"].get("crs", "EPSG:4979"), map_crs)
     area = crs_area_warning(fixes.lon_deg, fixes.lat_deg, map_crs)
     if area:
