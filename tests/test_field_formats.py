@@ -309,3 +309,22 @@ def test_survey_without_a_crs_names_the_sites_utm_zone(tmp_path):
     with pytest.raises(InputError, match=r'survey.json crs.*add "crs": "EPSG:32608"'):
         read_field_log(folder)
     assert read_field_log(folder, crs="EPSG:32608")[0].crs == "EPSG:32608"
+
+
+def test_ambiguous_clock_says_what_to_write(tmp_path):
+    """The example folder without clock_offset_s: the course fit is ambiguous (two turns of
+    consumer GPS, docs/field-format.md), and the error gives the survey.json fix a CLI user
+    can apply (before: "in survey.json or as an argument", process has no such argument)."""
+    import json
+    import shutil
+
+    from factorgraph import read_field_log
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    folder = tmp_path / "field"
+    shutil.copytree(example, folder)
+    man = json.loads((folder / "survey.json").read_text())
+    truth = man.pop("clock_offset_s")
+    (folder / "survey.json").write_text(json.dumps(man))
+    with pytest.raises(InputError, match=rf'"clock_offset_s".*0 when.*about {truth:.0f} \('):
+        read_field_log(folder)

@@ -119,7 +119,9 @@ def estimate_clock_offset(
             "clock_offset_s",
             f"estimate {lag:.2f} s ambiguous (course fit {r:.3f}, {away:.3f} 5 s away)",
             "turns in the traverse to align GPS and odometry on",
-            "give clock_offset_s (utc_s - t_rover_s) in survey.json or as an argument",
+            'give "clock_offset_s" (utc_s - t_rover_s, s) in survey.json: 0 when the rover '
+            "clock is UTC POSIX seconds; if the GPS and rover logs started together, about "
+            f"{gps_utc_s[0] - t_kf[0]:.0f} (first fix minus first keyframe)",
         )
     return lag, fit
 
