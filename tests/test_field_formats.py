@@ -328,3 +328,34 @@ def test_ambiguous_clock_says_what_to_write(tmp_path):
     (folder / "survey.json").write_text(json.dumps(man))
     with pytest.raises(InputError, match=rf'"clock_offset_s".*0 when.*about {truth:.0f} \('):
         read_field_log(folder)
+
+
+ROS_CAMERA = """image_width: 640
+image_height: 480
+camera_name: narrow_stereo
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [321.5, 0.0, 318.25, 0.0, 322.0, 241.5, 0.0, 0.0, 1.0]
+distortion_model: {model}
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.1, 0.01, 0.001, -0.002, 0.0]
+"""
+
+
+def test_camera_from_ros_camera_calibration(tmp_path):
+    """ROS camera_calibration's YAML ({rows, cols, data} maps, no OpenCV dt): read (before:
+    an uncaught cv2.error, a traceback); a fisheye model is refused, not misapplied."""
+    from factorgraph.field.intrinsics import read_camera
+    from factorgraph.sensors import SensorSuite
+
+    path = tmp_path / "camera.yaml"
+    path.write_text(ROS_CAMERA.format(model="plumb_bob"))
+    cam, dist = read_camera(path, SensorSuite().camera)
+    assert (cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px) == (321.5, 322.0, 318.25, 241.5)
+    np.testing.assert_allclose(dist, [-0.1, 0.01, 0.001, -0.002, 0.0])
+    path.write_text(ROS_CAMERA.format(model="equidistant"))
+    with pytest.raises(InputError, match=r"distortion_model.*equidistant.*fisheye"):
+        read_camera(path, SensorSuite().camera)

@@ -29,6 +29,32 @@ _EXTRA = {
 }
 
 
+def _matrix(node, name: str, key: str) -> np.ndarray | None:
+    """A matrix node of OpenCV's ``!!opencv-matrix`` form, or ROS ``camera_info`` YAML's
+    ``{rows, cols, data}`` map (what ``camera_calibration`` writes); None when absent."""
+    if node.empty():
+        return None
+    try:
+        m = node.mat()
+    except Exception:  # cv2.error: a map without OpenCV's ``dt`` (the ROS layout)
+        m = None
+    if m is None and node.isMap():
+        rows, cols, data = (node.getNode(k) for k in ("rows", "cols", "data"))
+        if not (rows.empty() or cols.empty() or data.empty()) and data.isSeq():
+            vals = [data.at(i).real() for i in range(data.size())]
+            shape = (int(rows.real()), int(cols.real()))
+            if len(vals) == shape[0] * shape[1]:
+                m = np.asarray(vals, float).reshape(shape)
+    if m is None:
+        raise bad_input(
+            f"{name} {key}",
+            "not a matrix",
+            "an OpenCV !!opencv-matrix or a {rows, cols, data} map",
+            "see docs/field-format.md (camera.yaml)",
+        )
+    return np.asarray(m, float)
+
+
 def read_camera(path: str | Path, base: CameraModel) -> tuple[CameraModel, np.ndarray | None]:
     """``(camera, distortion or None)`` from an OpenCV calibration file; keys it lacks keep
     the values of ``base`` (the survey's stated camera)."""
@@ -42,7 +68,7 @@ def read_camera(path: str | Path, base: CameraModel) -> tuple[CameraModel, np.nd
     except cv2.error as exc:
         raise bad_input(path.name, str(exc)[:120], "an OpenCV YAML/JSON file", "") from exc
     try:
-        K = fs.getNode("camera_matrix").mat()
+        K = _matrix(fs.getNode("camera_matrix"), path.name, "camera_matrix")
         if K is None or np.shape(K) != (3, 3) or not np.isfinite(K).all():
             raise bad_input(
                 f"{path.name} camera_matrix", None if K is None else np.shape(K), "a 3x3 matrix", ""
@@ -56,8 +82,18 @@ def read_camera(path: str | Path, base: CameraModel) -> tuple[CameraModel, np.nd
             node = fs.getNode(key)
             if not node.empty():
                 kw[name] = float(node.real())
-        d = fs.getNode("distortion_coefficients")
-        dist = None if d.empty() else np.asarray(d.mat(), float).ravel()
+        d = _matrix(fs.getNode("distortion_coefficients"), path.name, "distortion_coefficients")
+        dist = None if d is None else np.asarray(d, float).ravel()
+        model = fs.getNode("distortion_model")
+        model = "" if model.empty() else str(model.string())
+        if model and model not in ("plumb_bob", "rational_polynomial"):
+            raise bad_input(
+                f"{path.name} distortion_model",
+                model,
+                "plumb_bob or rational_polynomial (OpenCV's k1 k2 p1 p2 [k3 ...] model)",
+                "undistort the tracks beforehand (e.g. cv2.fisheye.undistortPoints) and give "
+                "the pinhole camera_matrix with zero distortion",
+            )
     finally:
         fs.release()
     if dist is not None and not np.any(dist):
