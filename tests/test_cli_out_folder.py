@@ -152,3 +152,28 @@ def test_reconstruct_twice_into_one_out_leaves_no_stale_report(tmp_path):
     assert "removed report.html" in " ".join(second.output.split())
     listed = json.loads((tmp_path / "o" / "reconstruct_summary.json").read_text())["products"]
     assert sorted(listed) == sorted(p.name for p in (tmp_path / "o").iterdir())
+
+
+def test_glacimap_process_cli_on_the_example_folder(tmp_path):
+    """``glacimap process`` end to end from the command line (none tested it): a prior
+    GeoTIFF, checkpoints with semicolons and decimal commas, an --out with a space; the
+    table says how the clock was set and how many checkpoints were scored."""
+    import numpy as np
+
+    from terrain.synthetic import default_site
+    from toolkit.field_survey import _write_geotiff, simulated_prior
+
+    prior = simulated_prior(default_site(4.0), 75.0, 1.5, 0.3, np.random.default_rng(0))
+    dem = _write_geotiff(prior, tmp_path / "prior.tif")
+    cps = tmp_path / "cp.csv"
+    cps.write_text("id;x;y;z;crs\n1;526300,5;6475280,25;100;EPSG:32608\n2;1;2;3;EPSG:32608\n")
+    out = tmp_path / "out dir"
+    args = ["process", str(EXAMPLE), "--prior", str(dem), "--checkpoints", str(cps)]
+    res = CliRunner().invoke(app, [*args, "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    flat = " ".join(re.sub(r"[│┃]", " ", res.output).split())
+    assert "GPS fixes used 156" in flat
+    assert "clock offset (s, survey.json) 1782936000.000" in flat
+    assert "checkpoints scored 1 of 2" in flat  # the second point is 526 km away
+    assert "1 of 2 checkpoints were not scored (1 outside the DEM)" in flat
+    assert {"report.html", "elevation.tif", "summary.json"} <= {p.name for p in out.iterdir()}

@@ -63,6 +63,13 @@ def process_command(
     loc = cert.get("localization", {})
     table.add_row("keyframes", str(loc.get("keyframes")))
     table.add_row("GPS fixes used", str(loc.get("gps_used")))
+    ing = cert.get("ingest") or {}
+    if ing.get("clock_source"):  # a field folder: how its rover clock was tied to UTC
+        se = (ing.get("clock_fit") or {}).get("standard_error_s")
+        table.add_row(
+            f"clock offset (s, {ing['clock_source']})",
+            f"{ing['clock_offset_s']:.3f}" + (f" +- {se:.3f}" if se is not None else ""),
+        )
     for reason, n in (loc.get("gps_skipped") or {}).items():
         table.add_row(f"  GPS skipped: {reason}", str(n))
     table.add_row("landmarks selected", str(loc.get("landmarks_selected")))
