@@ -177,3 +177,16 @@ def test_glacimap_process_cli_on_the_example_folder(tmp_path):
     assert "checkpoints scored 1 of 2" in flat  # the second point is 526 km away
     assert "1 of 2 checkpoints were not scored (1 outside the DEM)" in flat
     assert {"report.html", "elevation.tif", "summary.json"} <= {p.name for p in out.iterdir()}
+
+
+def test_command_help_paragraphs_are_not_cut_mid_sentence():
+    from toolkit.cli import command_help
+
+    for name, fn, _ in COMMANDS:
+        text = command_help(fn)
+        assert all("\n" not in par for par in text.split("\n\n")), name
+    out = CliRunner().invoke(app, ["change", "--help"]).output
+    starts = [ln.strip() for ln in out.splitlines()]
+    # before: the docstring's own line breaks, "...(a product folder" / "of run / process ..."
+    assert not any(ln.startswith("of run / process holds samples.csv") for ln in starts)
+    assert not any(ln.startswith("GP is refitted on its samples") for ln in starts)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import sys
 
 import typer
@@ -93,8 +94,18 @@ COMMANDS = (
         "Elevation and volume change between two DEMs, with an error budget.",
     ),
 )
+
+
+def command_help(fn) -> str:
+    """A command's docstring as ``--help`` shows it: each paragraph on one line (rich wraps
+    it to the terminal). Typer >= 0.20 joins the first paragraph's lines but keeps the hard
+    line breaks of the others, which printed them cut mid-sentence (``glacimap change``)."""
+    paragraphs = inspect.cleandoc(fn.__doc__ or "").split("\n\n")
+    return "\n\n".join(" ".join(par.split()) for par in paragraphs)
+
+
 for _name, _fn, _short in COMMANDS:
-    app.command(_name, short_help=_short)(_fn)
+    app.command(_name, short_help=_short, help=command_help(_fn))(_fn)
 
 err_console = Console(stderr=True)
 
