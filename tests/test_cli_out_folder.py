@@ -190,3 +190,24 @@ def test_command_help_paragraphs_are_not_cut_mid_sentence():
     # before: the docstring's own line breaks, "...(a product folder" / "of run / process ..."
     assert not any(ln.startswith("of run / process holds samples.csv") for ln in starts)
     assert not any(ln.startswith("GP is refitted on its samples") for ln in starts)
+
+
+def test_mesh_render_prints_no_vtk_warning(tmp_path):
+    """Without a display, VTK printed "vtkXOpenGLRenderWindow ... WARN| bad X server
+    connection" on stderr on every run / process / export (the PNG is made anyway)."""
+    code = (
+        "import numpy as np\n"
+        "from terrain import Grid\n"
+        "from terrain.product import terrain_dataset\n"
+        "from toolkit.export.mesh import write_mesh\n"
+        "g = Grid.from_bounds((526000.0, 6475000.0, 526100.0, 6475100.0), 10.0, crs='EPSG:32608')\n"
+        "ds = terrain_dataset(g, np.full(g.shape, 100.0), np.full(g.shape, 0.3), {'seed': 0})\n"
+        f"write_mesh(ds, png_path={str(tmp_path / 'm.png')!r}, window_size=(200, 150))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
+    res = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "m.png").stat().st_size > 0
+    assert "WARN" not in res.stderr, res.stderr

@@ -182,7 +182,12 @@ def _render_png(
 ) -> None:
     import matplotlib.image
     import pyvista as pv
+    from vtkmodules.vtkCommonCore import vtkLogger
 
+    # Without a display VTK falls back to off-screen rendering after printing "bad X server
+    # connection" as a warning on stderr on every glacimap run / process / export: the PNG is
+    # still made, so only VTK's errors are shown (a real failure raises below).
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
     shown = poly.copy()
     shown.points[:, 2] *= exaggeration
     plotter = pv.Plotter(off_screen=True, window_size=list(window_size))
