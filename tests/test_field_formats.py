@@ -359,3 +359,24 @@ def test_camera_from_ros_camera_calibration(tmp_path):
     path.write_text(ROS_CAMERA.format(model="equidistant"))
     with pytest.raises(InputError, match=r"distortion_model.*equidistant.*fisheye"):
         read_camera(path, SensorSuite().camera)
+
+
+def test_sigma_by_quality_with_a_misspelt_kind_is_refused(tmp_path):
+    import json
+    import shutil
+
+    from factorgraph import read_field_log
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    folder = tmp_path / "field"
+    shutil.copytree(example, folder)
+    man = json.loads((folder / "survey.json").read_text())
+    man["gps"]["sigma_by_quality"] = {"rtk_fix": 0.01}  # before: ignored, 0.02 m kept
+    (folder / "survey.json").write_text(json.dumps(man))
+    with pytest.raises(
+        InputError, match=r"sigma_by_quality key.*rtk_fix.*did you mean 'rtk_fixed'"
+    ):
+        read_field_log(folder)
+    man["gps"]["sigma_by_quality"] = {"single": 1.5}
+    (folder / "survey.json").write_text(json.dumps(man))
+    assert read_field_log(folder)[1].gps_format == "nmea"

@@ -22,7 +22,7 @@ from terrain.errors import bad_input
 from ..log import MeasurementLog
 from ..sensors import SensorSuite
 from .clock import check_overlap, estimate_clock_offset
-from .fixes import GPSFixes, crs_area_warning, project_fixes, utm_zone
+from .fixes import UERE_M, GPSFixes, crs_area_warning, project_fixes, utm_zone
 from .gate import gross_outliers
 from .gpx import read_gpx
 from .intrinsics import read_camera, undistort
@@ -125,6 +125,13 @@ def _gps_file(folder: Path, spec: dict[str, Any]) -> tuple[Path, str]:
 
 def _read_gps(path: Path, fmt: str, spec: dict[str, Any]) -> GPSFixes:
     table = spec.get("sigma_by_quality")
+    if table is not None:  # a misspelt kind would silently keep the default sigma
+        if not isinstance(table, dict):
+            raise bad_input(f"{MANIFEST} gps.sigma_by_quality", table, "a {kind: m} map", "")
+        _check_keys(f"{MANIFEST} gps.sigma_by_quality", table, set(UERE_M))
+        bad = {k: v for k, v in table.items() if not (isinstance(v, int | float) and v > 0)}
+        if bad:
+            raise bad_input(f"{MANIFEST} gps.sigma_by_quality", bad, "1-sigma > 0 (m)", "")
     if fmt == "nmea":
         return read_nmea(path, date=spec.get("date"), sigma_table=table)
     if fmt == "gpx":
