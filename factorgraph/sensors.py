@@ -195,7 +195,12 @@ class SensorSuite:
             names = {f.name for f in fields(kind)}
             extra = sorted(set(sub) - names)
             if extra:
-                raise bad_input(f"sensors.{key}", extra, f"keys among {sorted(names)}", "")
+                raise bad_input(
+                    f"sensors.{key}",
+                    extra,
+                    f"keys among {sorted(names)}",
+                    _did_you_mean(extra, names),
+                )
             if key == "gps" and "dropouts" in sub:
                 sub["dropouts"] = tuple(tuple(d) for d in sub["dropouts"])
             for k in ("sigma_white_m", "bias_sigma_m"):
@@ -205,5 +210,18 @@ class SensorSuite:
         names = {f.name for f in fields(cls)} - {key for key, _ in kinds}
         extra = sorted(set(data) - names)
         if extra:
-            raise bad_input("sensors", extra, f"keys among {sorted(names)}", "")
+            raise bad_input(
+                "sensors", extra, f"keys among {sorted(names)}", _did_you_mean(extra, names)
+            )
         return cls(**parts, **data)
+
+
+def _did_you_mean(extra: list[str], names: set[str]) -> str:
+    """``did you mean 'sigma_white_m'?`` for the first unknown key close to a known one."""
+    import difflib
+
+    for key in extra:
+        near = difflib.get_close_matches(key, sorted(names), n=1)
+        if near:
+            return f"{key!r}: did you mean {near[0]!r}?"
+    return "remove or rename the key"

@@ -380,3 +380,12 @@ def test_sigma_by_quality_with_a_misspelt_kind_is_refused(tmp_path):
     man["gps"]["sigma_by_quality"] = {"single": 1.5}
     (folder / "survey.json").write_text(json.dumps(man))
     assert read_field_log(folder)[1].gps_format == "nmea"
+
+
+def test_sensor_key_typo_gets_a_did_you_mean():
+    from factorgraph.sensors import SensorSuite
+
+    with pytest.raises(InputError, match=r"Fix: 'sigma_whte_m': did you mean 'sigma_white_m'\?"):
+        SensorSuite.from_dict({"gps": {"sigma_whte_m": [1, 1, 1]}})  # before: "Fix: " empty
+    with pytest.raises(InputError, match=r"did you mean 'speed_mps'\?"):
+        SensorSuite.from_dict({"speed_mp": 1.0})
