@@ -97,7 +97,7 @@ class ControlPoints:
         xyz = np.asarray(self.xyz, float).reshape(-1, 3) if n else np.zeros((0, 3))
         sigma = np.broadcast_to(np.asarray(self.sigma, float), (n, 3)).copy()
         if n == 0:
-            raise bad_input("control", self.source, "at least one control point", "")
+            raise bad_input("control", self.source, "at least one control point", "add points")
         if xyz.shape != (n, 3):
             raise bad_input("control.xyz", xyz.shape, f"shape ({n}, 3)", "one row per id")
         dup = sorted({i for i in ids if (ids == i).sum() > 1})
@@ -196,7 +196,9 @@ def _canonical(header: list[str], path: Path) -> dict[str, int]:
             )
         if name is not None:
             if name in cols:
-                raise bad_input(f"{path.name} column {raw!r}", header, f"one {name!r} column", "")
+                raise bad_input(
+                    f"{path.name} column {raw!r}", header, f"one {name!r} column", "drop one"
+                )
             cols[name] = i
     return cols
 

@@ -389,3 +389,25 @@ def test_sensor_key_typo_gets_a_did_you_mean():
         SensorSuite.from_dict({"gps": {"sigma_whte_m": [1, 1, 1]}})  # before: "Fix: " empty
     with pytest.raises(InputError, match=r"did you mean 'speed_mps'\?"):
         SensorSuite.from_dict({"speed_mp": 1.0})
+
+
+def test_manifest_and_file_errors_carry_a_fix(tmp_path):
+    """Each refusal says what to do (these ended in an empty "Fix: ")."""
+    import json
+    import shutil
+
+    from factorgraph import read_field_log
+    from toolkit.config import load_scenario
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    folder = tmp_path / "field"
+    shutil.copytree(example, folder)
+    man = json.loads((folder / "survey.json").read_text())
+    (folder / "survey.json").write_text(json.dumps({**man, "format": "v1"}))
+    with pytest.raises(InputError, match=r'Fix: add "format": "glacimap-field/1"'):
+        read_field_log(folder)
+    (folder / "survey.json").write_text(json.dumps({**man, "stops": "stop.csv"}))
+    with pytest.raises(InputError, match=r"stops.*Fix: check the name"):
+        read_field_log(folder)
+    with pytest.raises(InputError, match=r'Fix: pattern = "lawnmower" or "piecewise"'):
+        load_scenario(overrides={"plan": {"pattern": "zigzag"}})

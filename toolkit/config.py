@@ -216,7 +216,12 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise bad_input("seed", seed, "an integer >= 0", "seed = 0")
     if scenario["plan"]["pattern"] not in ("lawnmower", "piecewise"):
-        raise bad_input("plan.pattern", scenario["plan"]["pattern"], "lawnmower|piecewise", "")
+        raise bad_input(
+            "plan.pattern",
+            scenario["plan"]["pattern"],
+            "lawnmower|piecewise",
+            'pattern = "lawnmower" or "piecewise"',
+        )
     if scenario["site"]["kind"] not in ("default", "random", "dem"):
         raise bad_input(
             "site.kind", scenario["site"]["kind"], "'default', 'random' or 'dem'", "pick one"
@@ -228,9 +233,13 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         base = Path(path).resolve().parent if path is not None else Path.cwd()
         scenario["site"] = resolve_dem_site(scenario["site"], given, base)
     if int(scenario["plan"]["n_swaths"]) < 1:
-        raise bad_input("plan.n_swaths", scenario["plan"]["n_swaths"], "an integer >= 1", "")
+        raise bad_input(
+            "plan.n_swaths", scenario["plan"]["n_swaths"], "an integer >= 1", "e.g. n_swaths = 4"
+        )
     if scenario["control"]["mode"] not in ("stops", "targets", "both"):
-        raise bad_input("control.mode", scenario["control"]["mode"], "stops|targets|both", "")
+        raise bad_input(
+            "control.mode", scenario["control"]["mode"], "stops|targets|both", 'mode = "stops"'
+        )
     _check_models(scenario)
     from .epochs import check_change  # [change]: the second epoch's values
 

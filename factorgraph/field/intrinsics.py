@@ -62,7 +62,9 @@ def read_camera(path: str | Path, base: CameraModel) -> tuple[CameraModel, np.nd
 
     path = Path(path)
     if not path.is_file():
-        raise bad_input("camera", str(path), "an OpenCV calibration YAML/JSON", "")
+        raise bad_input(
+            "camera", str(path), "an OpenCV calibration YAML/JSON", "check the file name"
+        )
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except cv2.error as exc:

@@ -66,7 +66,9 @@ def _manifest(folder: Path) -> dict[str, Any]:
         raise bad_input(MANIFEST, str(exc)[:120], "valid JSON", "repair it") from exc
     if not isinstance(man, dict) or man.get("format") != FIELD_FORMAT:
         got = man.get("format") if isinstance(man, dict) else type(man).__name__
-        raise bad_input(f"{MANIFEST} format", got, repr(FIELD_FORMAT), "")
+        raise bad_input(
+            f"{MANIFEST} format", got, repr(FIELD_FORMAT), f'add "format": "{FIELD_FORMAT}"'
+        )
     _check_keys(MANIFEST, man, _KEYS)
     gps = man.get("gps", {})
     if isinstance(gps, str):
@@ -100,7 +102,9 @@ def _gps_file(folder: Path, spec: dict[str, Any]) -> tuple[Path, str]:
     if "file" in spec:
         path = folder / spec["file"]
         if not path.is_file():
-            raise bad_input(f"{MANIFEST} gps.file", spec["file"], "an existing file", "")
+            raise bad_input(
+                f"{MANIFEST} gps.file", spec["file"], "an existing file", "check the name"
+            )
     else:
         found = sorted(p for p in folder.iterdir() if p.suffix.lower() in GPS_SUFFIXES)
         if not found:  # a logger's .txt / .log: recognised by its content
@@ -127,11 +131,15 @@ def _read_gps(path: Path, fmt: str, spec: dict[str, Any]) -> GPSFixes:
     table = spec.get("sigma_by_quality")
     if table is not None:  # a misspelt kind would silently keep the default sigma
         if not isinstance(table, dict):
-            raise bad_input(f"{MANIFEST} gps.sigma_by_quality", table, "a {kind: m} map", "")
+            raise bad_input(
+                f"{MANIFEST} gps.sigma_by_quality", table, "a {kind: m} map", 'e.g. {"single": 2.5}'
+            )
         _check_keys(f"{MANIFEST} gps.sigma_by_quality", table, set(UERE_M))
         bad = {k: v for k, v in table.items() if not (isinstance(v, int | float) and v > 0)}
         if bad:
-            raise bad_input(f"{MANIFEST} gps.sigma_by_quality", bad, "1-sigma > 0 (m)", "")
+            raise bad_input(
+                f"{MANIFEST} gps.sigma_by_quality", bad, "1-sigma > 0 (m)", "fix the value"
+            )
     if fmt == "nmea":
         return read_nmea(path, date=spec.get("date"), sigma_table=table)
     if fmt == "gpx":
@@ -300,7 +308,7 @@ def read_field_log(
         if not on.any():
             control_id = None
     elif "stops" in man:
-        raise bad_input(f"{MANIFEST} stops", stops_name, "an existing file", "")
+        raise bad_input(f"{MANIFEST} stops", stops_name, "an existing file", "check the name")
     log = MeasurementLog(
         t=t_kf,
         odometry=odom,

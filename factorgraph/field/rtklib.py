@@ -174,7 +174,7 @@ def read_rtklib(path: str | Path) -> GPSFixes:
     path = Path(path)
     lines = path.read_text(errors="replace").splitlines()
     if not any(ln.strip() for ln in lines):
-        raise bad_input(path.name, "an empty file", "an RTKLIB .pos solution", "")
+        raise bad_input(path.name, "an empty file", "an RTKLIB .pos solution", "export it again")
     header = [ln for ln in lines if ln.startswith("%")]
     data = [ln for ln in lines if ln.strip() and not ln.startswith("%")]
     cols = header[-1].lstrip("%").split() if header else []
