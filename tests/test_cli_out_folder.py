@@ -211,3 +211,29 @@ def test_mesh_render_prints_no_vtk_warning(tmp_path):
     assert res.returncode == 0, res.stderr
     assert (tmp_path / "m.png").stat().st_size > 0
     assert "WARN" not in res.stderr, res.stderr
+
+
+def test_run_table_shows_the_maps_heldout_coverage_and_its_verdict():
+    """The table quoted the held-out coverage of the noisy samples (0.795 / 0.977 on the
+    default run) while the README and the report quote the map's, noise removed (72.9 /
+    96.5 %); and a verdict "too large" stayed in the JSON."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from toolkit.cli._progress import certificate_rows, print_warnings
+
+    held = {"coverage_68": 0.977, "coverage_95": 0.997, "map_coverage_68": 0.91,
+            "map_coverage_95": 0.998, "map_coverage_68_interval": [0.724, 1.0],
+            "map_coverage_95_interval": [0.964, 1.0],
+            "verdict": ["held-out 68 % map coverage 91.0 % is 22.7 points above"]}  # fmt: skip
+    table = Table()
+    table.add_column("q")
+    table.add_column("v")
+    certificate_rows(table, {"heldout_calibration": held})
+    console = Console(width=200, record=True)
+    console.print(table)
+    print_warnings(console, {"heldout_calibration": held})
+    text = console.export_text()
+    assert "held-out 68 % coverage of the map (%) │ 91.0 [72.4, 100.0]" in text
+    assert "0.977" not in text
+    assert "held-out check: held-out 68 % map coverage 91.0 % is 22.7 points above" in text

@@ -54,9 +54,20 @@ def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
     held = cert.get("heldout_calibration")
     if held:
         pooled = held.get("pooled", held)
-        for key in ("coverage_68", "coverage_95"):
-            if key in pooled:
-                table.add_row(f"held-out {key.replace('_', ' ')}", f"{pooled[key]:.3f}")
+        for level in ("68", "95"):
+            # the map's own 1-sigma checked on held-out samples with their noise removed (what
+            # the README and report quote); the raw coverage of noisy samples only without it
+            cov, ci = (
+                pooled.get(f"map_coverage_{level}"),
+                pooled.get(f"map_coverage_{level}_interval"),
+            )
+            if cov is not None:
+                band = f" [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]" if ci else ""
+                table.add_row(
+                    f"held-out {level} % coverage of the map (%)", f"{100 * cov:.1f}{band}"
+                )
+            elif f"coverage_{level}" in pooled:
+                table.add_row(f"held-out coverage {level}", f"{pooled[f'coverage_{level}']:.3f}")
     ci = cert.get("contour_interval", {})
     if ci.get("certified_m"):
         table.add_row("contour interval (m)", f"{ci['certified_m']:g}")
@@ -73,3 +84,6 @@ def print_warnings(console: Console, cert: dict[str, Any]) -> None:
     """The certificate's warnings (e.g. a dominant bias), one line each."""
     for w in cert.get("warnings", []):
         console.print(f"[yellow]warning:[/] {w}")
+    held = cert.get("heldout_calibration") or {}
+    for v in held.get("verdict") or []:  # the 1-sigma check in words (off by > 5 points)
+        console.print(f"[yellow]held-out check:[/] {v}")
