@@ -54,7 +54,7 @@ class TerrainGP(HyperparameterMixin):
     ----------
     kernel : "auto", family name(s), Kernel or None
         Covariance of the terrain deviation from the mean. ``"auto"`` (default) fits the
-        family SE (Eq 1), Matérn 3/2, Matérn 5/2 and their two-scale sums on the fit subset
+        family SE (Eq 1), Matérn 3/2, 5/2, 7/2 and their two-scale sums on the fit subset
         and keeps the best penalised evidence (BIC of Eq 9, :mod:`terrain.kernel_search`);
         a family name or a list of names restricts the search; a Kernel object is fitted
         from its initial hyperparameters and bounds; ``None``: ``SquaredExponential``

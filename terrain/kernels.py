@@ -210,27 +210,33 @@ class SquaredExponential(Kernel):
         return f"SquaredExponential(variance={self.variance:.4g}, lengthscale={_fmt(self)})"
 
 
+#: 2 nu for the half-integer Matérn kernels: a = sqrt(2 nu) r / l (R&W Eq 4.17).
+_MATERN_SCALE = {1.5: 3.0, 2.5: 5.0, 3.5: 7.0}
+
+
 @dataclass(frozen=True)
 class Matern(Kernel):
-    """Matérn kernel with smoothness ``nu`` in {1.5, 2.5} (Rasmussen & Williams Eq 4.17).
+    """Matérn kernel with smoothness ``nu`` in {1.5, 2.5, 3.5} (Rasmussen & Williams Eq 4.16
+    with the half-integer closed forms of Eq 4.17).
 
     Rougher than the squared exponential: nu = 1.5 gives once-differentiable surfaces, 2.5
-    twice. Which family fits a glacier better is decided by the marginal likelihood.
+    twice, 3.5 three times. Which family fits a glacier better is decided by the marginal
+    likelihood.
     """
 
     nu: float = 1.5
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.nu not in (1.5, 2.5):
-            raise bad_input("nu", self.nu, "1.5 or 2.5", "use SquaredExponential for nu = inf")
+        if self.nu not in _MATERN_SCALE:
+            raise bad_input("nu", self.nu, "1.5, 2.5 or 3.5", "use SquaredExponential for nu = inf")
 
     def _rho(self, d2: np.ndarray) -> np.ndarray:
         return self._rho_overwrite(d2.copy())
 
     def _rho_overwrite(self, d2: np.ndarray) -> np.ndarray:
         # In place: these matrices are the bulk of the work of a tiled prediction.
-        d2 *= 3.0 if self.nu == 1.5 else 5.0
+        d2 *= _MATERN_SCALE[self.nu]
         a = np.sqrt(d2, out=d2)
         e = np.negative(a)
         np.exp(e, out=e)
@@ -238,6 +244,15 @@ class Matern(Kernel):
             a += 1.0
             a *= e
             return a
+        if self.nu == 3.5:  # 1 + a + 2a^2/5 + a^3/15
+            poly = a / 15.0
+            poly += 0.4
+            poly *= a
+            poly += 1.0
+            poly *= a
+            poly += 1.0
+            poly *= e
+            return poly
         poly = a * a
         poly *= 1.0 / 3.0
         poly += a
@@ -247,22 +262,23 @@ class Matern(Kernel):
 
     def _drho_dlog_ls(self, d2: np.ndarray) -> np.ndarray:
         # With a = sqrt(2 nu) r / l: d rho / d log l = c(a) * (r/l)^2, no 1/r singularity:
-        # nu = 1.5: 3 exp(-a);  nu = 2.5: (5/3) (1 + a) exp(-a).
-        r = np.sqrt(d2)
-        if self.nu == 1.5:
-            return 3.0 * np.exp(-np.sqrt(3.0) * r)
-        a = np.sqrt(5.0) * r
-        return (5.0 / 3.0) * (1.0 + a) * np.exp(-a)
+        # nu = 1.5: 3 exp(-a);  nu = 2.5: (5/3) (1 + a) exp(-a);
+        # nu = 3.5: (7/15) (3 + 3a + a^2) exp(-a).
+        return self._rho_and_dlog(d2)[1]
 
     def _rho_and_dlog(self, d2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # One square root and one exponential for both (R&W Eq 4.17 and its derivative
         # above): a = sqrt(2 nu) r / l, e = exp(-a).
-        a = np.sqrt(d2 * (3.0 if self.nu == 1.5 else 5.0))
+        a = np.sqrt(d2 * _MATERN_SCALE[self.nu])
         e = np.exp(-a)
         if self.nu == 1.5:
             rho = (1.0 + a) * e
             e *= 3.0
             return rho, e
+        if self.nu == 3.5:
+            a2 = a * a
+            rho = (1.0 + a + 0.4 * a2 + a2 * a / 15.0) * e
+            return rho, (7.0 / 15.0) * (3.0 + 3.0 * a + a2) * e
         a1 = 1.0 + a
         rho = a * a
         rho *= 1.0 / 3.0

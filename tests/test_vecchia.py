@@ -57,10 +57,11 @@ def test_full_conditioning_sets_equal_the_exact_likelihood(data):
         # L-BFGS-B stopped early with ABNORMAL_TERMINATION_IN_LNSRCH.
         Matern(2.0, 30.0, nu=1.5),
         Matern(2.0, 30.0, nu=2.5),
+        Matern(2.0, 30.0, nu=3.5),
         SquaredExponential(2.0, 30.0),
         SquaredExponential(2.0, (30.0, 60.0)),
     ],
-    ids=["sum", "matern32", "matern52", "se", "se_aniso"],
+    ids=["sum", "matern32", "matern52", "matern72", "se", "se_aniso"],
 )
 def test_gradient_matches_finite_differences(data, kernel):
     X, r, zv = data
