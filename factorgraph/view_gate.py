@@ -94,7 +94,7 @@ def projection_views(graph) -> dict[str, np.ndarray]:
 
 
 def camera_poses(estimate, pose_keys: np.ndarray, bTc) -> tuple[np.ndarray, np.ndarray]:
-    """World-from-camera rotations (n, 3, 3) and camera centres (n, 3, m) of the body poses
+    """World-from-camera rotations (n, 3, 3) and camera centres (n, 3), m, of the body poses
     ``pose_keys`` (n,) (gtsam keys) in ``estimate`` with camera mounting ``bTc``
     (gtsam.Pose3)."""
     uniq, inv = np.unique(pose_keys, return_inverse=True)
