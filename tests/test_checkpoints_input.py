@@ -169,6 +169,10 @@ def test_dominant_bias_is_flagged_in_json_cli_and_html(site, tmp_path):
     assert all(any("of RMSE" in n for n in v["notes"]) for v in cert["verdicts"])
     html = write_report(tmp_path / "r.html", product=product, certificate=cert).read_text()
     assert 'id="bias-warning"' in html and "dominates the error" in html
+    # 40 checkpoints: the standard error comes from their errors' variogram (spatial route)
+    ba = cert["accuracy"]["bias_assessment"]
+    assert ba["standard_error_method"].startswith("spatial") and ba["error_variogram"]
+    assert 'id="bias-se"' in html and "standard error of the bias" in html
     p = _write(tmp_path / "cp.csv", ["x", "y", "z"], [xy[:, 0], xy[:, 1], cz])
     product.to_netcdf(tmp_path / "dem.nc")
     res = CliRunner().invoke(app, ["certify", str(tmp_path / "dem.nc"), str(p), "--crs", CRS])

@@ -31,6 +31,7 @@ from terrain.metrics import interval_coverage, standardized_error_stats
 from terrain.validation import CrossValidation
 from terrain.validation import json_safe as _clean
 
+from .certify_bias import bias_assessment
 from .certify_heldout import heldout_block
 from .certify_io import (
     Checkpoints,
@@ -67,8 +68,6 @@ SCHEMA = "glacimap-certificate/1"
 CONVENTIONAL_INTERVALS_M = (0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 2.5, 5.0, 10.0, 20.0, 25.0, 50.0)
 _PACKAGES = ("glacimap", "numpy", "scipy", "xarray", "rasterio", "pyproj", "gtsam")
 _MAX_ROWS_LISTED = 100  # dropped row indices listed per reason
-#: ASPRS 2014 Sec. 7.2: a mean error above 25 % of the RMSE is a systematic error to report.
-ASPRS_MEAN_ERROR_FRACTION = 0.25
 
 
 # --------------------------------------------------------------------------- statistics
@@ -125,46 +124,6 @@ def _dropped(mask: np.ndarray) -> dict[str, Any]:
         "count": int(rows.size),
         "rows": rows[:_MAX_ROWS_LISTED].tolist(),
         "rows_truncated": bool(rows.size > _MAX_ROWS_LISTED),
-    }
-
-
-def bias_assessment(err: np.ndarray) -> dict[str, Any]:
-    """How much of the RMSE is one shared offset: RMSE^2 = bias^2 + SD^2 (SD with 1/n).
-
-    ``err`` (n,) are ``map - checkpoint`` errors, m. The bias is ``significant`` when
-    ``|t| = |bias| / (s / sqrt(n)) > 1.96`` (s with n - 1), ``large`` when ``|bias|`` exceeds
-    :data:`ASPRS_MEAN_ERROR_FRACTION` of the RMSE (ASPRS 2014 Sec. 7.2) and ``dominant`` when
-    it is significant and ``bias^2 > SD^2`` (more than half the mean squared error).
-    ``message`` says it in words (``None`` when the bias is neither large nor dominant).
-    """
-    err = np.asarray(err, dtype=float)
-    n, bias = err.size, float(err.mean())
-    rmse = float(np.sqrt(np.mean(err**2)))
-    sd = float(err.std())  # population SD: rmse^2 = bias^2 + sd^2 exactly
-    se = float(err.std(ddof=1)) / math.sqrt(n) if n > 1 else math.nan
-    t = bias / se if se > 0 else (math.inf if bias and n > 1 else math.nan)
-    frac = abs(bias) / rmse if rmse > 0 else 0.0
-    significant = bool(n > 1 and abs(t) > 1.96)
-    large = significant and frac > ASPRS_MEAN_ERROR_FRACTION
-    dominant = significant and bias**2 > sd**2
-    message = (
-        f"{'the bias dominates the error' if dominant else 'a systematic bias'}: the map is "
-        f"{abs(bias):.2f} m {'above' if bias > 0 else 'below'} the checkpoints on average, "
-        f"{100 * frac:.0f} % of the RMSE ({100 * frac**2:.0f} % of the mean squared error; "
-        f"ASPRS 2014 expects under {100 * ASPRS_MEAN_ERROR_FRACTION:.0f} %). Without it the "
-        f"RMSE would be {sd:.2f} m. The verdicts are on the RMSE with the bias in it; a shared "
-        "vertical offset is removed by ground control or a datum shift, not by more survey."
-    )
-    return {
-        "bias_m": bias,
-        "rmse_without_bias_m": sd,
-        "fraction_of_rmse": frac,
-        "share_of_mse": frac**2,
-        "t_statistic": t,
-        "significant": significant,
-        "exceeds_asprs_mean_error": large,
-        "dominant": dominant,
-        "message": message if large or dominant else None,
     }
 
 
@@ -288,7 +247,7 @@ def certify(
         "p95_abs_error_m": float(np.percentile(np.abs(err), 95)),
         "accuracy_95_m": standards.accuracy_95(rmse, "nssda"),
         "rmse_with_checkpoint_error_m": standards.combined_rmse_with_checkpoints(rmse, cp_rmse),
-        "bias_assessment": bias_assessment(err),
+        "bias_assessment": bias_assessment(err, xy[used]),
     }
 
     finest = {
