@@ -133,8 +133,9 @@ class RasterMean(OffsetScaleMean):
     crs : pyproj.CRS or None
         The map CRS: ``None`` until bound (or given).
     n_nodata_ : int
-        Nodata cells of the bound raster inside the DEM footprint; they are filled with the
-        nearest valid value (``describe()["max_fill_m"]`` says how far that reached).
+        Nodata cells of the source DEM under the bound map area (counted on the source's own
+        cells, the same with or without ``cells=``); they are filled with the nearest valid
+        value (``describe()["max_fill_m"]`` says how far that reached).
     coef_, coef_cov_ : ndarray
         ``[a, b]`` and their covariance, once fitted (``offset="fit"``).
 
@@ -268,7 +269,7 @@ class RasterMean(OffsetScaleMean):
                     break
                 rx, ry = 2.0 * rx, 2.0 * ry  # a huge area: coarser (recorded as resolution_m)
             grid = Grid(ox + x0 * rx, oy + y1 * ry, (rx, ry), (y1 - y0, x1 - x0), crs)
-        values, n_nodata, max_fill = self._warp(grid, to_src)
+        values, n_nodata, max_fill = self._warp(grid, to_src, requested)
         bound = _Bound(crs, lattice, grid, values, requested, footprint, n_nodata, max_fill)
         if self.cells is not None:
             bound.tri = TriangulatedMean(coarse_dem(self._dem_array(grid, values), self.cells))
@@ -298,8 +299,13 @@ class RasterMean(OffsetScaleMean):
                 "use a DEM (or a mosaic/VRT of tiles) that covers the survey, or a smaller map",
             )
 
-    def _warp(self, grid: Grid, to_src: Transformer) -> tuple[np.ndarray, int, float]:
-        """Resample the source onto ``grid``; fill nodata by the nearest valid cell."""
+    def _warp(
+        self, grid: Grid, to_src: Transformer, requested: tuple
+    ) -> tuple[np.ndarray, int, float]:
+        """Resample the source onto ``grid``; fill nodata by the nearest valid cell. Returns
+        the lattice values, the number of *source* cells under ``requested`` (map CRS) that
+        are nodata (whatever the lattice: the 8 x 8 cells of ``cells=`` blend across a hole
+        without landing on it), and how far a fill reached (m)."""
         from scipy.ndimage import distance_transform_edt
 
         src = self.source
@@ -328,14 +334,13 @@ class RasterMean(OffsetScaleMean):
                 "a DEM with valid elevations over the map",
                 "check the nodata value (nodata=, the file's nodata) or use another DEM",
             )
-        n_nodata, max_fill = 0, 0.0
+        max_fill = 0.0
         if bad.any():
             dist, (ii, jj) = distance_transform_edt(bad, return_indices=True)
             holes = bad & inside
-            n_nodata = int(holes.sum())
-            max_fill = float(dist[holes].max() * grid.resolution[0]) if n_nodata else 0.0
+            max_fill = float(dist[holes].max() * grid.resolution[0]) if holes.any() else 0.0
             out = out[ii, jj]
-        return out, n_nodata, max_fill
+        return out, _nodata_under(values, transform, to_src, requested), max_fill
 
     # -- evaluation -----------------------------------------------------------------------
     def dem(self, xy: np.ndarray) -> np.ndarray:
@@ -395,6 +400,7 @@ class RasterMean(OffsetScaleMean):
             "source_bounds": list(src.bounds),
             "source_resolution": list(src.resolution),
             "source_nodata": src.nodata,
+            "source_vertical": src.vertical,
             "resampling": self.resampling,
             "offset": self.offset,
             "cells": None if self.cells is None else list(self.cells),
@@ -486,3 +492,15 @@ def _lattice(
     if not (np.isfinite(res) and res > 0):
         raise bad_input("source.transform", (dx, dy), "a positive cell size", "check the DEM")
     return (0.0, 0.0, float(res), float(res))
+
+
+def _nodata_under(values: np.ndarray, transform: Any, to_src: Transformer, box: tuple) -> int:
+    """Nodata cells of a source window whose centres fall inside ``box`` (map CRS)."""
+    rows, cols = np.nonzero(~np.isfinite(values))
+    if rows.size == 0:
+        return 0
+    sx = transform.c + transform.a * (cols + 0.5) + transform.b * (rows + 0.5)
+    sy = transform.f + transform.d * (cols + 0.5) + transform.e * (rows + 0.5)
+    mx, my = to_src.transform(sx, sy, direction="INVERSE")
+    w, s, e, n = box
+    return int(np.sum((mx >= w) & (mx <= e) & (my >= s) & (my <= n)))

@@ -5,11 +5,19 @@ Sources are normalised to a :class:`RasterSource`: CRS, affine transform of cell
 (rasterio convention; rows may run north or south, no rotation), shape, nodata value, and
 either a file path (windows are read on demand, so a large satellite tile is never read
 whole) or an in-memory float64 array with NaN for nodata.
+
+Elevations come out in metres: a GeoTIFF band's scale and offset (an int16 DEM stored as
+``(z - offset) / scale``) are applied after its nodata is masked, and heights in feet
+(GDAL's band unit type, a band ``units`` tag or a DataArray's ``units`` attribute: ``ft``,
+``foot``, ``US survey foot``...) are converted; ``vertical`` says what was done. A NetCDF
+file is opened with xarray (CF coordinates and ``grid_mapping``/``spatial_ref``), since
+GDAL reads one whose x / y lack CF axis attributes with an identity transform.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +32,42 @@ from .grid import _spacing, dataarray_crs, north_up
 __all__ = ["RasterSource", "open_source"]
 
 _NODATA_ATTRS = ("nodata", "_FillValue", "missing_value")
+_METRES = {"m", "metre", "metres", "meter", "meters", "metro", "metros"}
+_US_FOOT = 1200.0 / 3937.0
+_FEET = {
+    "ft": 0.3048,
+    "foot": 0.3048,
+    "feet": 0.3048,
+    "international foot": 0.3048,
+    "us survey foot": _US_FOOT,
+    "us survey feet": _US_FOOT,
+    "us_survey_foot": _US_FOOT,
+    "us-ft": _US_FOOT,
+    "ftus": _US_FOOT,
+    "foot_us": _US_FOOT,
+}
+_NETCDF = {".nc", ".nc4", ".cdf", ".netcdf"}
+
+
+def vertical_factor(units: Any) -> float:
+    """Metres per unit of a DEM's heights from its units text; 1 for metres or none.
+
+    Unrecognised units are read as metres with a ``UserWarning`` naming them.
+    """
+    if units is None:
+        return 1.0
+    u = " ".join(str(units).strip().lower().replace(".", " ").split())
+    if not u or u in _METRES or u.split(" ")[0] in _METRES:
+        return 1.0  # "m", "metres", "m a s l", "meters above sea level"
+    if u in _FEET:
+        return _FEET[u]
+    warnings.warn(
+        f"source units: {units!r} is not a length glacimap knows (metres or feet); the "
+        "heights are read as metres. Fix: convert the DEM to metres, or set its units",
+        UserWarning,
+        stacklevel=3,
+    )
+    return 1.0
 
 
 @dataclass(frozen=True)
@@ -45,7 +89,12 @@ class RasterSource:
     path : str or None
         File to read windows from, or ``None`` when ``array`` holds the data.
     array : ndarray or None
-        The whole DEM, float64, NaN for nodata (in-memory sources).
+        The whole DEM, float64, NaN for nodata, metres (in-memory sources).
+    scale, offset : float
+        Metres = stored value x ``scale`` + ``offset`` for windows read from ``path`` (band
+        scale / offset and a feet-to-metres factor); in-memory arrays hold metres already.
+    vertical : str
+        What was applied to the stored heights, in words (provenance).
     """
 
     label: str
@@ -55,6 +104,9 @@ class RasterSource:
     nodata: float | None
     path: str | None = None
     array: np.ndarray | None = None
+    scale: float = 1.0
+    offset: float = 0.0
+    vertical: str = "metres as stored"
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
@@ -102,6 +154,8 @@ class RasterSource:
                 band = ds.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
             values = np.ma.filled(band.astype(float), np.nan)
         values = _mask_nodata(values, self.nodata)
+        if self.array is None and (self.scale != 1.0 or self.offset != 0.0):
+            values = values * self.scale + self.offset
         return values, self.transform @ Affine.translation(c0, r0)
 
 
@@ -191,6 +245,8 @@ def _from_path(path: Path, source_crs: Any, nodata: float | None) -> RasterSourc
 
     if not path.is_file():
         raise bad_input("source", str(path), "an existing raster file", "check the path")
+    if path.suffix.lower() in _NETCDF:
+        return _from_netcdf(path, source_crs, nodata)
     try:
         with rasterio.open(path) as ds:
             return _from_dataset(ds, source_crs, nodata, label=str(path), keep_path=str(path))
@@ -220,12 +276,53 @@ def _from_dataset(
         "shape": (int(ds.height), int(ds.width)),
         "nodata": nodata if nodata is not None else file_nodata,
     }
+    band_scale = float(ds.scales[0]) if ds.scales and ds.scales[0] is not None else 1.0
+    band_offset = float(ds.offsets[0]) if ds.offsets and ds.offsets[0] is not None else 0.0
+    units = (ds.units[0] if ds.units else None) or ds.tags(1).get("units")
+    factor = vertical_factor(units)
+    scale, offset = band_scale * factor, band_offset * factor
+    vertical = _vertical_text(band_scale, band_offset, units, factor)
     if keep_path is not None:
         if nodata is not None and file_nodata is not None and nodata != file_nodata:
             array = _mask_nodata(ds.read(1, masked=True), nodata)  # both values apply
-            return RasterSource(**common, array=array)
-        return RasterSource(**common, path=keep_path)
-    return RasterSource(**common, array=_mask_nodata(ds.read(1, masked=True), common["nodata"]))
+            return RasterSource(**common, array=array * scale + offset, vertical=vertical)
+        return RasterSource(**common, path=keep_path, scale=scale, offset=offset, vertical=vertical)
+    array = _mask_nodata(ds.read(1, masked=True), common["nodata"]) * scale + offset
+    return RasterSource(**common, array=array, vertical=vertical)
+
+
+def _vertical_text(scale: float, offset: float, units: Any, factor: float) -> str:
+    parts = []
+    if scale != 1.0 or offset != 0.0:
+        parts.append(f"band scale {scale:g} and offset {offset:g} applied")
+    if factor != 1.0:
+        parts.append(f"heights in {units} converted to metres (x {factor:.10g})")
+    return "; ".join(parts) or "metres as stored"
+
+
+def _from_netcdf(path: Path, source_crs: Any, nodata: float | None) -> RasterSource:
+    import xarray as xr
+
+    try:
+        ds = xr.open_dataset(path)
+    except (OSError, ValueError) as exc:
+        raise bad_input("source", str(path), "a NetCDF file xarray can read", str(exc)) from exc
+    with ds:
+        names = [k for k, v in ds.data_vars.items() if {"x", "y"} <= set(v.dims)]
+        if "elevation" in names:
+            names = ["elevation"]
+        if len(names) != 1:
+            raise bad_input(
+                "source variables",
+                f"{path.name}: {sorted(ds.data_vars)}",
+                "one variable on dims (y, x), or one named 'elevation'",
+                "pass the DEM as a DataArray: xr.open_dataset(path)[name]",
+            )
+        src = _from_dataarray(ds[names[0]].load(), source_crs, nodata)
+    return RasterSource(
+        str(path), src.crs, src.transform, src.shape, src.nodata, array=src.array,
+        vertical=src.vertical,
+    )  # fmt: skip
 
 
 def _from_dataarray(da: Any, source_crs: Any, nodata: float | None) -> RasterSource:
@@ -250,7 +347,12 @@ def _from_dataarray(da: Any, source_crs: Any, nodata: float | None) -> RasterSou
             values = _mask_nodata(values, float(fill))
     t = Affine(dx, 0.0, x[0] - dx / 2, 0.0, -dy, y[0] + dy / 2)
     values = _mask_nodata(values, nodata)
-    return RasterSource("DataArray", crs, t, values.shape, nodata, array=values)
+    units = da.attrs.get("units")
+    factor = vertical_factor(units)
+    vertical = _vertical_text(1.0, 0.0, units, factor)
+    return RasterSource(
+        "DataArray", crs, t, values.shape, nodata, array=values * factor, vertical=vertical
+    )
 
 
 def _tent(t: np.ndarray) -> np.ndarray:

@@ -350,3 +350,72 @@ def test_gp_map_from_a_geographic_prior_equals_the_map_from_the_utm_prior(tmp_pa
     assert np.abs(a.elevation_std.values - b.elevation_std.values).max() < 1e-3
     truth = bumpy(*grid.xy().T).reshape(grid.shape) + 2.0
     assert np.abs(a.elevation.values - truth).max() < 0.5  # the map itself is right
+
+
+# -- heights as stored: band scale / offset, feet, NetCDF, nodata under cells= --------------
+
+
+def test_int16_band_scale_and_offset_are_applied(tmp_path):
+    # An int16 DEM stored as round((z - 50) / 0.1) with band scale 0.1 and offset 50 (GDAL's
+    # convention: value = stored x scale + offset); nodata -32768 masked before scaling.
+    t = from_origin(W, N, RES, RES)
+    z = plane(*centres(t, (NCELL, NCELL)))
+    stored = np.round((z - 50.0) / 0.1).astype(np.int16)
+    stored[100:102, 100:102] = -32768
+    path = tmp_path / "i16.tif"
+    profile = {"driver": "GTiff", "count": 1, "dtype": "int16", "crs": "EPSG:32608"}
+    with rasterio.open(
+        path, "w", height=NCELL, width=NCELL, transform=t, nodata=-32768, **profile
+    ) as ds:
+        ds.write(stored, 1)
+        ds.scales, ds.offsets = (0.1,), (50.0,)
+    m = RasterMean(path, offset="none").bind(32608, INNER)
+    np.testing.assert_allclose(m(points()), plane(*points().T), atol=0.05 + 1e-9)  # 0.1 m steps
+    assert m.n_nodata_ == 4 and "band scale 0.1 and offset 50" in m.describe()["source_vertical"]
+
+
+@pytest.mark.parametrize(
+    "how, units, factor",
+    [("unit", "ft", 0.3048), ("tag", "US survey foot", 1200 / 3937), ("tag", "metre", 1.0)],
+)
+def test_heights_in_feet_are_converted(tmp_path, how, units, factor):
+    t = from_origin(W, N, RES, RES)
+    path = write_tif(tmp_path / "ft.tif", plane(*centres(t, (NCELL, NCELL))) / factor, t, 32608)
+    with rasterio.open(path, "r+") as ds:
+        if how == "unit":
+            ds.units = (units,)  # GDAL's band unit type
+        else:
+            ds.update_tags(1, units=units)
+    m = RasterMean(path, offset="none").bind(32608, INNER)
+    np.testing.assert_allclose(m(points()), plane(*points().T), rtol=1e-12)
+    da = utm_array()
+    da = da.copy(data=da.values / factor).assign_attrs(units=units)
+    np.testing.assert_allclose(
+        RasterMean(da, offset="none").bind(32608, INNER)(points()), plane(*points().T), rtol=1e-12
+    )
+
+
+def test_unknown_height_units_warn_and_read_as_metres():
+    da = utm_array().assign_attrs(units="fathoms")
+    with pytest.warns(UserWarning, match="fathoms"):
+        m = RasterMean(da, offset="none")
+    np.testing.assert_allclose(m.bind(32608, INNER)(points()), plane(*points().T), rtol=1e-12)
+
+
+def test_netcdf_path_without_cf_axis_attributes(tmp_path):
+    # x / y without CF axis attributes: GDAL reads such a file with an identity transform
+    # (footprint (0, 0, ncols, nrows)); it is opened with xarray instead.
+    da = utm_array(bumpy)
+    path = tmp_path / "prior.nc"
+    da.to_dataset(name="elevation").to_netcdf(path)
+    m = RasterMean(path, offset="none").bind(32608, INNER)
+    ref = RasterMean(da, offset="none").bind(32608, INNER)
+    np.testing.assert_array_equal(m(points()), ref(points()))
+
+
+def test_nodata_counted_on_source_cells_with_coarse_cells(tmp_path):
+    z = plane(*centres(from_origin(W, N, RES, RES), (NCELL, NCELL)))
+    z[100:103, 100:104] = -9999.0  # 12 source cells under INNER
+    path = utm_tif(tmp_path, values=z, nodata=-9999.0)
+    for cells in (None, (8, 8)):
+        assert RasterMean(path, offset="none", cells=cells).bind(32608, INNER).n_nodata_ == 12
