@@ -34,7 +34,7 @@ from .errors import NotFittedError, bad_input
 from .grid import Grid, as_crs, check_same_crs
 from .linear_mean import OffsetScaleMean, check_xy, check_z, coefficient_table, parse_offset
 from .prior import TriangulatedMean, coarse_dem
-from .raster_source import RasterSource, open_source, sample_pixels
+from .raster_source import RasterSource, nodata_under, open_source, sample_pixels
 
 __all__ = ["RESAMPLING", "RasterMean", "gdal_average"]
 
@@ -340,7 +340,7 @@ class RasterMean(OffsetScaleMean):
             holes = bad & inside
             max_fill = float(dist[holes].max() * grid.resolution[0]) if holes.any() else 0.0
             out = out[ii, jj]
-        return out, _nodata_under(values, transform, to_src, requested), max_fill
+        return out, nodata_under(values, transform, to_src, requested), max_fill
 
     # -- evaluation -----------------------------------------------------------------------
     def dem(self, xy: np.ndarray) -> np.ndarray:
@@ -492,15 +492,3 @@ def _lattice(
     if not (np.isfinite(res) and res > 0):
         raise bad_input("source.transform", (dx, dy), "a positive cell size", "check the DEM")
     return (0.0, 0.0, float(res), float(res))
-
-
-def _nodata_under(values: np.ndarray, transform: Any, to_src: Transformer, box: tuple) -> int:
-    """Nodata cells of a source window whose centres fall inside ``box`` (map CRS)."""
-    rows, cols = np.nonzero(~np.isfinite(values))
-    if rows.size == 0:
-        return 0
-    sx = transform.c + transform.a * (cols + 0.5) + transform.b * (rows + 0.5)
-    sy = transform.f + transform.d * (cols + 0.5) + transform.e * (rows + 0.5)
-    mx, my = to_src.transform(sx, sy, direction="INVERSE")
-    w, s, e, n = box
-    return int(np.sum((mx >= w) & (mx <= e) & (my >= s) & (my <= n)))

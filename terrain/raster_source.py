@@ -419,3 +419,17 @@ def _convolve(values, i0, j0, fr, fc, offsets, kernel) -> tuple[np.ndarray, ...]
             norm += wt
             n_ok += ok
     return total, norm, n_ok
+
+
+def nodata_under(values: np.ndarray, transform: Affine, to_src: Any, box: tuple) -> int:
+    """Nodata cells of a source window (``values``, NaN = nodata; ``transform`` of its cell
+    corners) whose centres fall inside ``box`` (map CRS; ``to_src``: map -> source
+    ``pyproj.Transformer``)."""
+    rows, cols = np.nonzero(~np.isfinite(values))
+    if rows.size == 0:
+        return 0
+    sx = transform.c + transform.a * (cols + 0.5) + transform.b * (rows + 0.5)
+    sy = transform.f + transform.d * (cols + 0.5) + transform.e * (rows + 0.5)
+    mx, my = to_src.transform(sx, sy, direction="INVERSE")
+    w, s, e, n = box
+    return int(np.sum((mx >= w) & (mx <= e) & (my >= s) & (my <= n)))

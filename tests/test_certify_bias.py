@@ -62,3 +62,9 @@ def test_few_checkpoints_fall_back_to_independent_errors():
     assert b["t_statistic"] == pytest.approx(err.mean() / (err.std(ddof=1) / np.sqrt(n)))
     # Student's t with n - 1 = 28 degrees of freedom (tables: 2.048)
     assert b["t_critical"] == pytest.approx(2.048, abs=1e-3)
+
+
+def test_one_checkpoint_has_no_standard_error_and_no_crash():
+    b = bias_assessment(np.array([0.3]), np.array([[0.0, 0.0]]))
+    assert not b["significant"] and np.isnan(b["standard_error_m"])
+    assert b["error_variogram"] is None

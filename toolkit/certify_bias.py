@@ -148,7 +148,8 @@ def bias_assessment(err: np.ndarray, xy: np.ndarray | None = None) -> dict[str, 
     sd = float(err.std())  # population SD: rmse^2 = bias^2 + sd^2 exactly
     se_iid = float(err.std(ddof=1)) / math.sqrt(n) if n > 1 else math.nan
     spatial = None if xy is None or n < 2 else mean_error_variance(err, xy)
-    if spatial is not None and spatial["identified"]:
+    use_spatial = spatial is not None and spatial["identified"]
+    if use_spatial:
         se = math.sqrt(spatial["variance_m2"])
         method = (
             f"spatial: exponential variogram of the checkpoint errors (range "
@@ -178,7 +179,7 @@ def bias_assessment(err: np.ndarray, xy: np.ndarray | None = None) -> dict[str, 
     # Student's t with n_eff - 1 degrees of freedom: the SE itself is estimated from few
     # effective samples when the errors are correlated (1.96 gave 7-10 % false alarms at
     # n_eff ~ 10-40 in the Monte Carlo of tests/test_certify_bias.py).
-    dof = max((spatial["n_effective"] if se != se_iid else n) - 1.0, 1.0)
+    dof = max((spatial["n_effective"] if use_spatial else n) - 1.0, 1.0)
     crit = float(student_t.ppf(0.975, dof))
     frac = abs(bias) / rmse if rmse > 0 else 0.0
     significant = bool(n > 1 and abs(t) > crit)
