@@ -6,7 +6,8 @@ your own DEM").
     python benchmarks/vision_dem.py --dems olinda lux --sites coarse --size 240
 
 DEMs: ``scripts/real_dems.py`` (``olinda`` UTM 25S 90 m, ``rm`` / ``prism`` lon/lat 2.5',
-``lux`` lon/lat 30" with nodata, ``glacier`` 100 m local TM). Each is written as a GeoTIFF in
+``lux`` lon/lat 30" with nodata, ``glacier`` 100 m local TM, matplotlib's ``jacksboro`` 3"
+and ``topobathy`` 1' lon/lat). Each is written as a GeoTIFF in
 its own CRS (nodata -9999) under ``--work`` and two sites are made from it:
 
 ``coarse``
@@ -46,7 +47,7 @@ for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
 
 from _harness import in_subprocess, table, write_json  # noqa: E402
 
-DEMS = ("olinda", "rm", "prism", "lux", "glacier")
+DEMS = ("olinda", "rm", "prism", "lux", "glacier", "jacksboro", "topobathy")
 NODATA = -9999.0
 
 
