@@ -68,3 +68,17 @@ def test_one_checkpoint_has_no_standard_error_and_no_crash():
     b = bias_assessment(np.array([0.3]), np.array([[0.0, 0.0]]))
     assert not b["significant"] and np.isnan(b["standard_error_m"])
     assert b["error_variogram"] is None
+
+
+def test_bias_against_the_maps_stated_shared_offset():
+    # 40 checkpoints, bias 0.46 m, no coordinates (independent errors): SE = s / sqrt(n) =
+    # 0.32 sqrt(40/39) / sqrt(40) = 0.0513 m; z = bias / sqrt(stated^2 + SE^2) by hand:
+    err = 0.46 + 0.32 * np.tile([1.0, -1.0], 20)
+    se = err.std(ddof=1) / np.sqrt(40)
+    ok = bias_assessment(err, stated_shared_std_m=0.5)["against_stated_offset"]
+    assert ok["consistent"] and ok["z"] == pytest.approx(0.46 / np.hypot(0.5, se))
+    low = bias_assessment(err, stated_shared_std_m=0.05)
+    assert not low["against_stated_offset"]["consistent"]
+    assert low["against_stated_offset"]["z"] == pytest.approx(0.46 / np.hypot(0.05, se))
+    assert "too small" in low["message"]
+    assert bias_assessment(err)["against_stated_offset"] is None

@@ -127,6 +127,15 @@ def _dropped(mask: np.ndarray) -> dict[str, Any]:
     }
 
 
+def _stated_shared_std(provenance: Mapping[str, Any]) -> float | None:
+    """The product's shared vertical offset 1-sigma (m), when it states one."""
+    try:
+        v = float(provenance.get("shared_vertical_offset_std_m"))
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) and v >= 0 else None
+
+
 # --------------------------------------------------------------------------- certify
 def _dropped_warning(n_total: int, n_used: int, *masks: np.ndarray) -> str | None:
     """Words for checkpoints that were read but not scored (None when all were)."""
@@ -247,7 +256,7 @@ def certify(
         "p95_abs_error_m": float(np.percentile(np.abs(err), 95)),
         "accuracy_95_m": standards.accuracy_95(rmse, "nssda"),
         "rmse_with_checkpoint_error_m": standards.combined_rmse_with_checkpoints(rmse, cp_rmse),
-        "bias_assessment": bias_assessment(err, xy[used]),
+        "bias_assessment": bias_assessment(err, xy[used], _stated_shared_std(raster.provenance)),
     }
 
     finest = {

@@ -129,7 +129,9 @@ def mean_error_variance(err: np.ndarray, xy: np.ndarray) -> dict[str, Any] | Non
     }
 
 
-def bias_assessment(err: np.ndarray, xy: np.ndarray | None = None) -> dict[str, Any]:
+def bias_assessment(
+    err: np.ndarray, xy: np.ndarray | None = None, stated_shared_std_m: float | None = None
+) -> dict[str, Any]:
     """How much of the RMSE is one shared offset: RMSE^2 = bias^2 + SD^2 (SD with 1/n).
 
     ``err`` (n,) are ``map - checkpoint`` errors, m; ``xy`` (n, 2) their coordinates, m
@@ -141,6 +143,12 @@ def bias_assessment(err: np.ndarray, xy: np.ndarray | None = None) -> dict[str, 
     :data:`ASPRS_MEAN_ERROR_FRACTION` of the RMSE (ASPRS 2014 Sec. 7.2) and ``dominant`` when
     it is significant and ``bias^2 > SD^2`` (more than half the mean squared error).
     ``message`` says it in words (``None`` when the bias is neither large nor dominant).
+
+    ``stated_shared_std_m`` is the map's own 1-sigma of its shared vertical offset (a
+    product's ``shared_vertical_offset_std_m``: the survey's unobservable mean GPS bias,
+    carried in ``elevation_std``). The bias is then compared with it,
+    ``z = bias / sqrt(stated^2 + SE^2)``: within 2, the map's total 1-sigma already states
+    it; beyond, the stated offset 1-sigma is too small for the bias the checkpoints see.
     """
     err = np.asarray(err, dtype=float)
     n, bias = err.size, float(err.mean())
@@ -193,6 +201,25 @@ def bias_assessment(err: np.ndarray, xy: np.ndarray | None = None) -> dict[str, 
         f"RMSE would be {sd:.2f} m. The verdicts are on the RMSE with the bias in it; a shared "
         "vertical offset is removed by ground control or a datum shift, not by more survey."
     )
+    stated = None
+    if stated_shared_std_m is not None and math.isfinite(float(stated_shared_std_m)):
+        sd_s = float(stated_shared_std_m)
+        denom = math.hypot(sd_s, se if math.isfinite(se) else 0.0)
+        z = bias / denom if denom > 0 else math.inf
+        consistent = abs(z) <= 2.0
+        stated = {
+            "shared_offset_std_m": sd_s,
+            "z": z,
+            "consistent": consistent,
+            "text": (
+                f"It is within the survey's stated shared vertical offset (1-sigma "
+                f"{sd_s:.2f} m, z = {z:+.1f}): the map's total 1-sigma already carries it."
+                if consistent
+                else f"It is larger than the survey's stated shared vertical offset (1-sigma "
+                f"{sd_s:.2f} m, z = {z:+.1f}): the map's stated 1-sigma is too small for it."
+            ),
+        }
+        message += " " + stated["text"]
     return {
         "bias_m": bias,
         "rmse_without_bias_m": sd,
@@ -204,6 +231,7 @@ def bias_assessment(err: np.ndarray, xy: np.ndarray | None = None) -> dict[str, 
         "t_statistic_independent": t_of(se_iid),
         "t_critical": crit,
         "error_variogram": spatial,
+        "against_stated_offset": stated,
         "significant": significant,
         "exceeds_asprs_mean_error": large,
         "dominant": dominant,
