@@ -28,7 +28,7 @@ from .gp_mean import GLS_MAX_SAMPLES, bind_mean, gls_coefficients, n_coef, varia
 from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
 from .kernels import Kernel
-from .linalg import cholesky_jitter
+from .linalg import cholesky_jitter, single_blas_thread
 from .prior import as_mean_function
 from .product import json_rows, mean_coefficients, software_version, terrain_dataset
 from .samples import ElevationSamples
@@ -203,6 +203,7 @@ class TerrainGP(HyperparameterMixin):
         return not isinstance(self.nugget_bounds, str)
 
     # -- fit ------------------------------------------------------------------------------
+    @single_blas_thread
     def fit(self, samples: ElevationSamples) -> TerrainGP:
         """Fit hyperparameters (optional) and factor the kernel matrix once.
 
@@ -357,6 +358,7 @@ class TerrainGP(HyperparameterMixin):
             return int(self.chunk_size)
         return int(np.clip(2**24 // max(self.alpha_.size, 1), 256, 65536))
 
+    @single_blas_thread
     def predict(
         self, xy: np.ndarray, return_std: bool = False, include_nugget: bool = False
     ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -431,6 +433,7 @@ class TerrainGP(HyperparameterMixin):
                 std[sl] = np.sqrt(np.maximum(var, 0.0))
         return (mean, std) if return_std else mean
 
+    @single_blas_thread
     def predict_grid(
         self, grid: Grid, include_nugget: bool = False, chunks: int | tuple[int, int] | None = None
     ):

@@ -28,7 +28,6 @@ initial value instead (this breaks the parts' symmetry). Kernel bounds are hard 
 
 from __future__ import annotations
 
-import contextlib
 import time
 from dataclasses import dataclass, field
 from numbers import Real
@@ -39,6 +38,7 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 from scipy.optimize import minimize
 
 from .errors import bad_input
+from .linalg import one_blas_thread
 from .prior import as_mean_function
 from .samples import ElevationSamples
 
@@ -78,15 +78,6 @@ def mixture_mean_std(means: np.ndarray, stds: np.ndarray) -> tuple[np.ndarray, n
     means, stds = np.asarray(means, dtype=float), np.asarray(stds, dtype=float)
     mean = means.mean(axis=0)
     return mean, np.sqrt((stds**2).mean(axis=0) + ((means - mean) ** 2).mean(axis=0))
-
-
-def _one_blas_thread():
-    """Small Cholesky factors run far faster on one BLAS thread (and spin less on busy cores)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn / dask
-        return contextlib.nullcontext()
-    return threadpool_limits(1, user_api="blas")
 
 
 def _thin(samples: ElevationSamples, max_samples: int, bin_size: float | None, rng):
@@ -387,7 +378,7 @@ def sample_hyperparameters(
         lp = logpost(v * sd)
         return -lp if np.isfinite(lp) else 1e300
 
-    with _one_blas_thread():
+    with one_blas_thread():
         res = minimize(objective, start / sd, method="Powell")
     best = res.x * sd if np.isfinite(logpost(res.x * sd)) else start
     p0 = np.empty((int(n_walkers), p))
@@ -402,7 +393,7 @@ def sample_hyperparameters(
         moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     sampler = emcee.EnsembleSampler(int(n_walkers), p, logpost, moves=moves)
     sampler.random_state = np.random.RandomState(seed).get_state()
-    with _one_blas_thread():
+    with one_blas_thread():
         sampler.run_mcmc(p0, int(n_steps), progress=False)
     chain = sampler.get_chain(discard=burn)
     tau = emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
