@@ -52,6 +52,18 @@ __all__ = [
 ]
 
 
+def _zero_counts() -> dict[str, Any]:
+    """What one gate pass counts, before it cuts anything."""
+    return {
+        "views_cut": 0,
+        "landmarks_trimmed": 0,
+        "landmarks_removed": 0,
+        "views_removed_with_landmarks": 0,
+        "removed_ids": [],
+        "worst_px": 0.0,
+    }
+
+
 def view_gate_px(pixel_sigma_px: float, false_alarm: float) -> float:
     """The gate (px) on a view's reprojection error: the chi2 test with 2 degrees of freedom
     on ``|e|^2 / sigma^2`` at false-alarm probability ``false_alarm`` per correct view
@@ -177,15 +189,7 @@ def gate_views(
     import gtsam
 
     v = projection_views(graph)
-    report: dict[str, Any] = {
-        "views_tested": int(v["index"].size),
-        "views_cut": 0,
-        "landmarks_trimmed": 0,
-        "landmarks_removed": 0,
-        "views_removed_with_landmarks": 0,
-        "removed_ids": [],
-        "worst_px": 0.0,
-    }
+    report: dict[str, Any] = {"views_tested": int(v["index"].size), **_zero_counts()}
     if v["index"].size == 0:
         return graph, estimate, report
     R, c = camera_poses(estimate, v["pose"], bTc)
@@ -295,12 +299,7 @@ def gated_refinement(graph, online, refined, refine_report, bTc, calibration, ga
 
     t0 = time.perf_counter()
     summary: dict[str, Any] = {
-        "views_cut": 0,
-        "landmarks_trimmed": 0,
-        "landmarks_removed": 0,
-        "views_removed_with_landmarks": 0,
-        "removed_ids": [],
-        "worst_px": 0.0,
+        **_zero_counts(),
         "gate_px": float(gate_px),
         "views_tested": 0,
         "rounds": 0,

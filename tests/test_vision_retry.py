@@ -11,6 +11,8 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")
 
+from test_vision_view_gate import _pinned  # noqa: E402  (tests/ is on sys.path)
+
 from factorgraph import SensorSuite, simulate_traverse  # noqa: E402
 from factorgraph.localize import LocalizeParams, _Tracks, localize  # noqa: E402
 from factorgraph.track_init import retry_failed_tracks, triangulate_track  # noqa: E402
@@ -19,17 +21,7 @@ from factorgraph.vision import vision_sensors  # noqa: E402
 
 def _setup():
     """Three keyframes 2 m apart along x, pinned by tight priors; the vision camera."""
-    camera = vision_sensors(SensorSuite()).camera
-    K = camera.calibration()
-    bTc = gtsam.Pose3(camera.body_T_camera())
-    X = gtsam.symbol_shorthand.X
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    prior = gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
-    poses = {}
-    for k in range(3):
-        poses[k] = gtsam.Pose3(gtsam.Rot3(), np.array([2.0 * k, 0.0, 0.0]))
-        graph.add(gtsam.PriorFactorPose3(X(k), poses[k], prior))
-        values.insert(X(k), poses[k])
+    camera, K, bTc, graph, values, poses = _pinned(3)
     noise = gtsam.noiseModel.Isotropic.Sigma(2, camera.pixel_sigma_px)
     return camera, K, bTc, graph, values, poses, noise
 

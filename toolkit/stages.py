@@ -292,6 +292,12 @@ def localization_summary(loc: LocalizationResult, sel: LandmarkSelection) -> dic
             "isam2_rebuilds": loc.n_rebuilds,
             # what kept the online pass going, by kind (factorgraph.rebuild.OnlineGuard)
             "isam2_recovery": dict((loc.refine or {}).get("isam2_recovery", {})),
+            # wrong associations cut after the refinement (factorgraph.view_gate)
+            "view_gate": {
+                k: v
+                for k, v in (loc.refine or {}).get("view_gate", {}).items()
+                if k != "removed_ids"  # the ids are in landmarks.csv (reason)
+            },
         }
     )
     # GPS records not used, by reason: the field reader's counts (factorgraph.field) and the
