@@ -63,6 +63,10 @@ FAMILY = (
     "matern52+matern52",
     "matern72+matern72",
 )
+#: L-BFGS-B's relative stop while the candidates are screened (the winner is refined to 1e-7):
+#: with |lml| ~ 500-3000 nats it stops within ~0.01-0.03 nats, far inside BIC_TIE. Measured on
+#: four real DEMs at 50k: the same picks, BICs within 0.3, fit CPU -13 to -19 % (1e-7 before).
+SCREEN_FTOL = 1e-5
 #: Mean-square differentiability of each part (Matérn nu; SE: infinitely smooth).
 _SMOOTHNESS = {"se": np.inf, "matern32": 1.5, "matern52": 2.5, "matern72": 3.5}
 #: BIC margin below which the evidence is not "strong" (Kass & Raftery 1995: 2-6 positive,
@@ -136,8 +140,9 @@ def warn_if_degenerate(kernel: Any, X: np.ndarray | None) -> bool:
 class _Search:
     """One search over the family on one fit subset (shared plan and bounds)."""
 
-    def __init__(self, X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing, m, rng):
+    def __init__(self, X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing, m, rng, ftol):
         self.X, self.r, self.z_var = X, r, z_var
+        self.ftol = ftol  # L-BFGS-B's relative reduction stop
         self.fit_nugget, self.nugget = fit_nugget, float(nugget)
         self.nugget_bounds = nugget_bounds
         self.plan = VecchiaPlan.build(X, m, rng)
@@ -172,7 +177,7 @@ class _Search:
         ls = float(np.clip(ls, *self.ls_bounds))
         return _PARTS[name](v, ls, b)
 
-    def optimize(self, kernel, nugget, maxiter=200, ftol=1e-7):
+    def optimize(self, kernel, nugget, maxiter=200, ftol=None):
         bounds = self._bounds(kernel)
 
         def objective(theta):
@@ -193,7 +198,7 @@ class _Search:
             jac=True,
             method="L-BFGS-B",
             bounds=bounds,
-            options={"maxiter": maxiter, "ftol": ftol},
+            options={"maxiter": maxiter, "ftol": self.ftol if ftol is None else ftol},
         )
         if not np.isfinite(res.fun):
             return None
@@ -336,7 +341,7 @@ def select_kernel(
     spacing = median_spacing(X) if spacing is None else float(spacing)
     m_screen, m_refine = neighbours
     args = (X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing)
-    search = _Search(*args, m_screen, rng)
+    search = _Search(*args, m_screen, rng, SCREEN_FTOL)
     # Nugget start: what nearest-neighbour differences show beyond the stated noise.
     _, nn = cKDTree(X).query(X, k=2)
     semiv = 0.5 * float(np.median((r - r[nn[:, 1]]) ** 2))
@@ -402,7 +407,7 @@ def select_kernel(
     rows.sort(key=lambda r_: (not r_["selected"], np.inf if r_["bic"] is None else r_[key]))
     k, nug, _, _ = fits[best["name"]]
     # Refine the winner on larger conditioning sets (closer to the exact Eq 9).
-    refine = _Search(*args, m_refine, rng)
+    refine = _Search(*args, m_refine, rng, 1e-7)
     with threadpool_limits(1):
         fine = refine.optimize(k, nug)
     if fine is not None:
