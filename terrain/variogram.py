@@ -26,6 +26,7 @@ from .errors import bad_input
 
 __all__ = [
     "SphericalVariogram",
+    "binned_semivariance",
     "convolved_covariance",
     "covariance_sum",
     "empirical_variogram",
@@ -128,6 +129,37 @@ class SphericalVariogram:
         }
 
 
+def binned_semivariance(
+    xy: np.ndarray,
+    values: np.ndarray,
+    n_bins: int = 25,
+    min_lag: float | None = None,
+    max_lag: float | None = None,
+    min_pairs: int = 10,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Binned semivariance of ``values`` (n,) at ``xy`` (n, 2) over all pairs.
+
+    Bins are log-spaced from ``min_lag`` (default: the smallest non-zero distance) to
+    ``max_lag`` (default: half the extent's diagonal); bins with fewer than ``min_pairs``
+    pairs are dropped. Returns bin centres (m), semivariance (units^2) and pair counts.
+    """
+    from scipy.spatial.distance import pdist
+
+    d = pdist(xy)
+    g = 0.5 * pdist(np.asarray(values, float)[:, None], "sqeuclidean")
+    if max_lag is None:
+        max_lag = 0.5 * float(np.hypot(*np.ptp(xy, axis=0)))
+    lo = max(float(np.min(d[d > 0])), 1e-3) if min_lag is None else float(min_lag)
+    edges = np.geomspace(lo, max_lag, n_bins + 1)
+    b = np.digitize(d, edges) - 1
+    keep = (b >= 0) & (b < n_bins)
+    counts = np.bincount(b[keep], minlength=n_bins)
+    sums = np.bincount(b[keep], weights=g[keep], minlength=n_bins)
+    good = counts >= min_pairs
+    centres = np.sqrt(edges[:-1] * edges[1:])
+    return centres[good], sums[good] / counts[good], counts[good]
+
+
 def empirical_variogram(
     xy: np.ndarray,
     values: np.ndarray,
@@ -141,8 +173,6 @@ def empirical_variogram(
     Returns bin centres (m), semivariance (m^2) and pair counts; bins are log-spaced from the
     smallest spacing to ``max_lag`` (default half the extent's diagonal).
     """
-    from scipy.spatial.distance import pdist
-
     xy, v = np.asarray(xy, float), np.asarray(values, float)
     ok = np.isfinite(v)
     xy, v = xy[ok], v[ok]
@@ -157,19 +187,7 @@ def empirical_variogram(
     if v.size > n_points:
         idx = rng.choice(v.size, n_points, replace=False)
         xy, v = xy[idx], v[idx]
-    d = pdist(xy)
-    g = 0.5 * pdist(v[:, None], "sqeuclidean")
-    if max_lag is None:
-        max_lag = 0.5 * float(np.hypot(*np.ptp(xy, axis=0)))
-    lo = max(float(np.min(d[d > 0])), 1e-3)
-    edges = np.geomspace(lo, max_lag, n_bins + 1)
-    b = np.digitize(d, edges) - 1
-    keep = (b >= 0) & (b < n_bins)
-    counts = np.bincount(b[keep], minlength=n_bins)
-    sums = np.bincount(b[keep], weights=g[keep], minlength=n_bins)
-    good = counts >= 10
-    centres = np.sqrt(edges[:-1] * edges[1:])
-    return centres[good], sums[good] / counts[good], counts[good]
+    return binned_semivariance(xy, v, n_bins, max_lag=max_lag)
 
 
 def fit_variogram(lags: np.ndarray, gamma: np.ndarray, counts: np.ndarray) -> SphericalVariogram:

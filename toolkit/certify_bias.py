@@ -25,7 +25,10 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy.spatial.distance import pdist
 from scipy.stats import t as student_t
+
+from terrain.variogram import binned_semivariance
 
 __all__ = [
     "ASPRS_MEAN_ERROR_FRACTION",
@@ -41,6 +44,7 @@ MIN_SPATIAL_CHECKPOINTS = 30
 _N_BINS = 12
 _MIN_PAIRS = 15
 _CHUNK = 2048
+_VARIOGRAM_POINTS = 3000  # as terrain.variogram.empirical_variogram
 
 
 def _pair_sums(xy: np.ndarray, a: float) -> float:
@@ -74,14 +78,17 @@ def mean_error_variance(err: np.ndarray, xy: np.ndarray) -> dict[str, Any] | Non
         off within the checkpoints' layout and the variance is not usable).
     """
     from scipy.optimize import curve_fit
-    from scipy.spatial.distance import pdist
 
     err, xy = np.asarray(err, float), np.asarray(xy, float)
     n = err.size
     if n < MIN_SPATIAL_CHECKPOINTS:
         return None
-    d = pdist(xy)
-    g = 0.5 * pdist(err[:, None], "sqeuclidean")
+    # the variogram from at most _VARIOGRAM_POINTS of them (seeded: pairs grow as n^2); the
+    # mean's variance below sums over all
+    sub = np.arange(n)
+    if n > _VARIOGRAM_POINTS:
+        sub = np.sort(np.random.default_rng(0).choice(n, _VARIOGRAM_POINTS, replace=False))
+    d = pdist(xy[sub])
     pos = d[d > 0]
     if pos.size < _MIN_PAIRS * 3:
         return None
@@ -89,17 +96,9 @@ def mean_error_variance(err: np.ndarray, xy: np.ndarray) -> dict[str, Any] | Non
     lo, hi = float(np.partition(pos, _MIN_PAIRS)[_MIN_PAIRS]), 0.5 * float(d.max())
     if not hi > lo:
         return None
-    edges = np.geomspace(lo, hi, _N_BINS + 1)
-    b = np.digitize(d, edges) - 1
-    keep = (b >= 0) & (b < _N_BINS)
-    counts = np.bincount(b[keep], minlength=_N_BINS)
-    sums = np.bincount(b[keep], weights=g[keep], minlength=_N_BINS)
-    good = counts >= _MIN_PAIRS
-    if good.sum() < 4:
+    h, gam, cnt = binned_semivariance(xy[sub], err[sub], _N_BINS, lo, hi, _MIN_PAIRS)
+    if h.size < 4:
         return None
-    h = np.sqrt(edges[:-1] * edges[1:])[good]
-    gam = sums[good] / counts[good]
-    cnt = counts[good]
     top = float(max(gam.max(), np.var(err), 1e-12))
 
     def model(hh, c0, c1, a):
