@@ -32,38 +32,43 @@ from .grid import _spacing, dataarray_crs, north_up
 __all__ = ["RasterSource", "open_source"]
 
 _NODATA_ATTRS = ("nodata", "_FillValue", "missing_value")
-_METRES = {"m", "metre", "metres", "meter", "meters", "metro", "metros"}
-_US_FOOT = 1200.0 / 3937.0
-_FEET = {
-    "ft": 0.3048,
-    "foot": 0.3048,
-    "feet": 0.3048,
-    "international foot": 0.3048,
-    "us survey foot": _US_FOOT,
-    "us survey feet": _US_FOOT,
-    "us_survey_foot": _US_FOOT,
-    "us-ft": _US_FOOT,
-    "ftus": _US_FOOT,
-    "foot_us": _US_FOOT,
+#: Abbreviations a DEM's units text uses for names in PROJ's unit table (pyproj).
+_UNIT_ALIASES = {
+    "m": "metre",
+    "meter": "metre",
+    "meters": "metre",
+    "metres": "metre",
+    "ft": "foot",
+    "feet": "foot",
+    "international foot": "foot",
+    "us-ft": "us survey foot",
+    "ftus": "us survey foot",
+    "foot_us": "us survey foot",
+    "us_survey_foot": "us survey foot",
+    "us survey feet": "us survey foot",
 }
 _NETCDF = {".nc", ".nc4", ".cdf", ".netcdf"}
 
 
-def vertical_factor(units: Any) -> float:
-    """Metres per unit of a DEM's heights from its units text; 1 for metres or none.
+def vertical_factor(units: Any, crs: CRS | None = None) -> float:
+    """Metres per unit of a DEM's heights: from its units text (PROJ's linear units, by
+    name or common abbreviation), else from the vertical axis of a compound ``crs``, else 1.
 
-    Unrecognised units are read as metres with a ``UserWarning`` naming them.
+    Unrecognised units text is read as metres with a ``UserWarning`` naming it.
     """
-    if units is None:
-        return 1.0
+    from pyproj import get_units_map
+
+    if units is None or not str(units).strip():
+        up = [ax for ax in (crs.axis_info if crs is not None else []) if ax.direction == "up"]
+        return float(up[0].unit_conversion_factor) if up else 1.0
     u = " ".join(str(units).strip().lower().replace(".", " ").split())
-    if not u or u in _METRES or u.split(" ")[0] in _METRES:
-        return 1.0  # "m", "metres", "m a s l", "meters above sea level"
-    if u in _FEET:
-        return _FEET[u]
+    table = {k.lower(): v.conv_factor for k, v in get_units_map(category="linear").items()}
+    for key in (u, _UNIT_ALIASES.get(u), _UNIT_ALIASES.get(u.split(" ")[0])):
+        if key in table:  # "m a s l", "metres above sea level": the first word
+            return float(table[key])
     warnings.warn(
-        f"source units: {units!r} is not a length glacimap knows (metres or feet); the "
-        "heights are read as metres. Fix: convert the DEM to metres, or set its units",
+        f"source units: {units!r} is not a length unit PROJ knows; the heights are read as "
+        "metres. Fix: convert the DEM to metres, or set its units (e.g. 'm', 'ft')",
         UserWarning,
         stacklevel=3,
     )
@@ -279,9 +284,9 @@ def _from_dataset(
     band_scale = float(ds.scales[0]) if ds.scales and ds.scales[0] is not None else 1.0
     band_offset = float(ds.offsets[0]) if ds.offsets and ds.offsets[0] is not None else 0.0
     units = (ds.units[0] if ds.units else None) or ds.tags(1).get("units")
-    factor = vertical_factor(units)
+    factor = vertical_factor(units, crs)
     scale, offset = band_scale * factor, band_offset * factor
-    vertical = _vertical_text(band_scale, band_offset, units, factor)
+    vertical = _vertical_text(band_scale, band_offset, units or "the CRS's vertical unit", factor)
     if keep_path is not None:
         if nodata is not None and file_nodata is not None and nodata != file_nodata:
             array = _mask_nodata(ds.read(1, masked=True), nodata)  # both values apply
@@ -348,8 +353,8 @@ def _from_dataarray(da: Any, source_crs: Any, nodata: float | None) -> RasterSou
     t = Affine(dx, 0.0, x[0] - dx / 2, 0.0, -dy, y[0] + dy / 2)
     values = _mask_nodata(values, nodata)
     units = da.attrs.get("units")
-    factor = vertical_factor(units)
-    vertical = _vertical_text(1.0, 0.0, units, factor)
+    factor = vertical_factor(units, crs)
+    vertical = _vertical_text(1.0, 0.0, units or "the CRS's vertical unit", factor)
     return RasterSource(
         "DataArray", crs, t, values.shape, nodata, array=values * factor, vertical=vertical
     )

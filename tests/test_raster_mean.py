@@ -419,3 +419,16 @@ def test_nodata_counted_on_source_cells_with_coarse_cells(tmp_path):
     path = utm_tif(tmp_path, values=z, nodata=-9999.0)
     for cells in (None, (8, 8)):
         assert RasterMean(path, offset="none", cells=cells).bind(32608, INNER).n_nodata_ == 12
+
+
+def test_heights_in_feet_from_a_compound_crs():
+    # No units text: the vertical axis of EPSG:32608+8228 (UTM 8N + NAVD88 height in ft,
+    # PROJ's unit table: 0.3048 m per foot) says the heights are feet.
+    from pyproj import CRS
+
+    da = utm_array()
+    da = da.copy(data=da.values / 0.3048)
+    da.attrs = {"crs_wkt": CRS("EPSG:32608+8228").to_wkt()}
+    m = RasterMean(da, offset="none").bind(32608, INNER)
+    np.testing.assert_allclose(m(points()), plane(*points().T), rtol=1e-12)
+    assert "vertical unit" in m.describe()["source_vertical"]
