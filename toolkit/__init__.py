@@ -12,13 +12,21 @@ Only ``toolkit`` sees every other package (the layout ``toolkit -> {survey, fact
   (:func:`read_checkpoints`, :class:`Checkpoints`), :func:`write_certificate`.
 * Products: :func:`write_cog`, :func:`write_contours`, :func:`write_mesh`,
   :func:`write_geojson`; :func:`write_report` (the HTML certificate).
-* Command line: ``glacimap`` (:func:`main`).
+* Command line: ``glacimap`` (:func:`main`); ``__version__`` is the installed version
+  (``glacimap --version``), the one certificates record.
 """
 
 from __future__ import annotations
 
 import importlib
+from importlib.metadata import PackageNotFoundError, version
 from typing import Any
+
+try:  # the installed distribution's version: what ``glacimap --version`` prints and every
+    # certificate and product records (toolkit.certify.software_versions)
+    __version__ = version("glacimap")
+except PackageNotFoundError:  # a source tree on sys.path without ``pip install -e .``
+    __version__ = "0+unknown"
 
 # A public name equal to its submodule's name is imported eagerly: importing the submodule
 # binds ``toolkit.<name>`` to the module, which a lazy ``__getattr__`` would never override.

@@ -54,7 +54,16 @@ STAGES = ("plan", "simulate", *PROCESS_STAGES)
 
 class RunResult(ProcessResult):
     """What ``glacimap run`` made: products on disk plus the in-memory objects; its
-    ``settings`` are the scenario."""
+    ``settings`` are the scenario. The attributes of :class:`ProcessResult`, plus in
+    ``summary`` the truth metrics (``rmse_m``: the map against the true DEM, m; ``metrics``
+    per method) and in ``objects`` ``truth`` (the true DEM, ``xarray.DataArray``, m),
+    ``plan``, ``field_survey`` and ``maps``."""
+
+    def __repr__(self) -> str:
+        text = super().__repr__()
+        if "rmse_m" in self.summary:
+            text = text[:-1] + f", RMSE vs truth {self.summary['rmse_m']:.3f} m)"
+        return text
 
     @property
     def scenario(self) -> dict[str, Any]:
@@ -175,6 +184,12 @@ def run_scenario(
         ``on_stage(stage, "start" | "done")`` for progress display.
     on_progress : callable, optional
         ``on_progress(k, K)`` during localization.
+
+    Returns
+    -------
+    RunResult
+        As :func:`toolkit.process` returns, plus the truth metrics (m) and the simulated
+        world (``.objects["truth"]``).
     """
     scenario = load_scenario(config, overrides)
     out = ensure_writable_dir(out)

@@ -15,7 +15,7 @@ import os
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,7 @@ from terrain.errors import InputError, bad_input
 
 from .config import load_scenario
 from .export._files import output_folder, previous_products, remove_stale, staged_folder
+from .provenance import input_record, split_timings
 from .stages import (
     certify_stage,
     localization_summary,
@@ -42,9 +43,32 @@ __all__ = ["PROCESS_STAGES", "ProcessResult", "ingest", "prior_mean", "process"]
 PROCESS_STAGES = ("ingest", "localize", "select", "reconstruct", "certify", "export")
 
 
-@dataclass
+@dataclass(repr=False)
 class ProcessResult:
-    """What :func:`process` made: products on disk plus the in-memory objects."""
+    """What :func:`process` made: products on disk plus the in-memory objects.
+
+    Attributes
+    ----------
+    out : pathlib.Path
+        The output folder.
+    settings : dict
+        The settings used (the scenario TOML's tables, validated).
+    timings : dict of str to float
+        Wall-clock seconds per stage (``ingest``, ``localize``, ...).
+    summary : dict
+        What ``summary.json`` holds: ``seed``, ``certificate`` (the certificate's dict:
+        ``accuracy`` RMSE / bias in m against the checkpoints, ``heldout_calibration``
+        coverages as fractions, verdicts per standard), ``timings_s``, ``products``.
+    objects : dict
+        In-memory results: ``log``, ``localization``, ``selection``, ``reconstruction``
+        (its ``.product`` is the map: an ``xarray.Dataset`` with ``elevation``,
+        ``elevation_std`` and ``elevation_std_relative`` in m on (y, x)), ``grid``,
+        ``control``, ``checkpoints``.
+    products : list of str
+        File names written into ``out``.
+    removed : list of str
+        Files of an earlier run into the same ``out`` that this one removed.
+    """
 
     out: Path
     settings: dict[str, Any]
@@ -55,6 +79,27 @@ class ProcessResult:
     #: into the same ``out`` that this one removed (:func:`.export._files.remove_stale`).
     products: list[str] = field(default_factory=list)
     removed: list[str] = field(default_factory=list)
+
+    def __repr__(self) -> str:
+        """One line a notebook can read: folder, seed, the certified numbers, time."""
+        cert = self.summary.get("certificate") or {}
+        parts = [f"out={str(self.out)!r}", f"seed={self.summary.get('seed')}"]
+        acc = cert.get("accuracy")
+        if acc:
+            parts.append(
+                f"RMSE vs {acc['n']} checkpoints {acc['rmse_m']:.3f} m "
+                f"(bias {acc['bias_m']:+.3f} m)"
+            )
+        held = cert.get("heldout_calibration") or {}
+        if held.get("map_coverage_68") is not None:
+            parts.append(
+                f"held-out coverage of the map 68/95 % = {100 * held['map_coverage_68']:.1f}/"
+                f"{100 * held['map_coverage_95']:.1f} %"
+            )
+        parts.append(f"{len(self.products)} files")
+        if self.timings:
+            parts.append(f"{sum(self.timings.values()):.1f} s")
+        return f"{type(self).__name__}({', '.join(parts)})"
 
     @contextmanager
     def stage(self, name: str, notify: Callable[[str, str], None] | None = None):
@@ -95,7 +140,8 @@ def ingest(log: Any, crs: Any = None) -> tuple[MeasurementLog, dict[str, Any]]:
 def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
     """The GP prior mean: ``RasterMean(prior)`` (a + b * DEM fitted by GLS) with the
     ``[prior]`` settings (``cells``: the paper's triangulated coarse mean; ``resampling``), or
-    a constant mean when no prior is given."""
+    a constant mean when no prior is given. A DEM read from a file is labelled by its file
+    name (its ``repr`` and the products' ``mean_function``), not its absolute path."""
     if prior is None:
         return "constant"
     if isinstance(prior, RasterMean):
@@ -109,7 +155,12 @@ def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
         )
     cfg = settings.get("prior", {})
     cells = tuple(int(c) for c in cfg.get("cells", [])) or None
-    return RasterMean(prior, resampling=cfg.get("resampling", "bilinear"), cells=cells)
+    mean = RasterMean(prior, resampling=cfg.get("resampling", "bilinear"), cells=cells)
+    if mean.source.path is not None:  # provenance names the file, not where it was read:
+        # the products' bytes must not depend on the folder (toolkit.provenance); the file's
+        # SHA-256 is in the product's ``inputs`` attribute
+        mean.source = replace(mean.source, label=Path(mean.source.path).name)
+    return mean
 
 
 def _control_and_checkpoints(control: Any, checkpoints: Any, log: MeasurementLog):
@@ -169,6 +220,13 @@ def process(
     truth, truth_path : xarray.DataArray, ndarray of shape (n, 3), optional
         Simulation only: the report's error map and the true path layer. Nothing else reads
         them.
+
+    Returns
+    -------
+    ProcessResult
+        The products' folder and names, the certificate (``.summary["certificate"]``), the
+        stage timings (s) and the in-memory map (``.objects["reconstruction"].product``:
+        ``elevation``, ``elevation_std``, ``elevation_std_relative``, m).
     """
     settings = config if isinstance(config, dict) else load_scenario(config)
     with output_folder(out) as folder:
@@ -193,6 +251,19 @@ def _process(
         mlog, ingest_report = ingest(log)
         ctrl, cps = _control_and_checkpoints(control, checkpoints, mlog)
         mean = prior_mean(prior, settings)
+        # which files made the map, by name and SHA-256 (every product's metadata)
+        log_record = None if isinstance(log, MeasurementLog) else input_record("log", log)
+        prior_record = input_record("prior", prior)
+        files = [
+            r
+            for r in (
+                log_record,
+                prior_record,
+                input_record("control", control),
+                input_record("checkpoints", checkpoints),
+            )
+            if r is not None
+        ]
     with stage("localize"):
         loc = localize_stage(mlog, settings, control=ctrl, progress=on_progress)
     with stage("select"):
@@ -208,20 +279,26 @@ def _process(
         )
         folds = int(settings["certify"]["heldout_folds"])
         rec = reconstruct_selection(sel, grid, mean, settings, seed, folds)
+        rec.product.attrs["inputs"] = json.dumps(
+            [{k: r[k] for k in ("role", "name", "sha256")} for r in files]
+        )
     with staged_folder(out) as tmp_out:
         from .products import write_products
 
         with stage("certify"):
             cert = certify_stage(rec, cps, settings, seed)
-            cert["localization"] = localization_summary(loc, sel)
+            # wall-clock seconds go to summary.json only: a certificate is the same bytes
+            # for the same inputs and seed (toolkit.provenance)
+            cert["localization"], loc_times = split_timings(localization_summary(loc, sel))
             cert["ingest"] = ingest_report
             for w in ingest_report.get("warnings", []):  # e.g. a map CRS far from the site
                 cert.setdefault("warnings", []).append(w)
             cert["inputs"] = {
-                "log": str(log) if not isinstance(log, MeasurementLog) else "in memory",
-                "prior": None if prior is None else str(getattr(prior, "name", prior)),
+                "log": log_record["name"] if log_record else "in memory",
+                "prior": None if prior_record is None else prior_record["name"],
                 "control": None if ctrl is None else f"{ctrl.n} points ({ctrl.source})",
                 "checkpoints": None if cps is None else str(getattr(cps, "source", "")),
+                "files": files,
             }
             if ctrl is not None:  # which control the graph used: stop / target, and why not
                 c = loc.control or {}
@@ -246,6 +323,7 @@ def _process(
                 "seed": seed,
                 "certificate": cert,
                 "timings_s": res.timings,
+                "localization_timings_s": loc_times,
                 "products": res.products,
             }
             with atomic_path(tmp_out / "summary.json") as tmp:

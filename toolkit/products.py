@@ -136,7 +136,7 @@ def write_map_products(
     and ``report.html``. Without checkpoints the contour interval is 3 x the held-out RMSE,
     marked uncertified."""
     from .certify import write_certificate
-    from .export import write_cog, write_contours, write_mesh
+    from .export import write_cog, write_contours, write_mesh, write_netcdf
     from .report import write_report
 
     product = rec.product
@@ -147,9 +147,7 @@ def write_map_products(
     certified = bool(cert.get("accuracy") or cert.get("heldout_calibration"))
     if certified:
         paths["certificate"] = write_certificate(cert, out / "certificate.json")
-    with atomic_path(out / "product.nc") as tmp:
-        product.to_netcdf(tmp, engine="scipy")
-    paths["product"] = out / "product.nc"
+    paths["product"] = write_netcdf(product, out / "product.nc")
     paths["cog"] = write_cog(product, out / "elevation.tif")
     exp = settings["export"]
     geojson = out / "contours.geojson" if exp["geojson"] else None

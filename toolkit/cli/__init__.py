@@ -34,8 +34,24 @@ app = typer.Typer(
 )
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from .. import __version__
+
+        typer.echo(f"glacimap {__version__}")
+        raise typer.Exit(0)
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    version: bool = typer.Option(
+        False,
+        "--version",
+        callback=_print_version,
+        is_eager=True,
+        help="Print the installed glacimap version (what certificates record) and exit.",
+    ),
+) -> None:
     """Certified, probabilistic elevation maps of glaciers from a rover survey."""
 
 

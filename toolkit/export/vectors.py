@@ -140,8 +140,25 @@ def _as_layer(name: str, layer: Any) -> VectorLayer:
 
 
 def _write(path: Path, layer: VectorLayer, name: str, crs: str, driver: str, **options) -> None:
+    from pyogrio import get_gdal_config_option, set_gdal_config_options
     from pyogrio.raw import write
 
+    from ..provenance import gpkg_last_change
+
+    # GDAL stamps gpkg_contents.last_change with the wall clock unless OGR_CURRENT_DATE is
+    # set: a fixed stamp keeps the file's bytes a function of its content (same seed, same
+    # bytes); restored afterwards, as it is a process-wide GDAL setting
+    before = get_gdal_config_option("OGR_CURRENT_DATE")
+    if driver == "GPKG":
+        set_gdal_config_options({"OGR_CURRENT_DATE": gpkg_last_change()})
+    try:
+        _write_layer(write, path, layer, name, crs, driver, **options)
+    finally:
+        if driver == "GPKG":
+            set_gdal_config_options({"OGR_CURRENT_DATE": before})
+
+
+def _write_layer(write, path, layer, name, crs, driver, **options) -> None:
     write(
         str(path),
         shapely.to_wkb(layer.geometry) if len(layer) else np.array([], dtype=object),
