@@ -149,6 +149,15 @@ def _canonical(cols: dict[str, Any], name: str) -> tuple[dict[str, Any], dict[st
         else:
             out[canon], used[canon] = values, header
     missing = [c for c in _COLUMNS if c not in out]
+    if missing and _all_numbers(list(cols)):  # the first line is data: no header row
+        raise bad_input(
+            f"{name} header",
+            list(cols),
+            "a header row naming the columns (the first line holds only numbers, so the "
+            "file has none)",
+            "add a first line such as x,y,z (or easting,northing,elevation) in the file's "
+            "column order",
+        )
     if missing:
         hints = []
         for header in unknown:
@@ -163,6 +172,14 @@ def _canonical(cols: dict[str, Any], name: str) -> tuple[dict[str, Any], dict[st
             "; ".join(hints) or "rename the header (x, y: easting/northing; z: elevation, m)",
         )
     return out, used, unknown
+
+
+def _all_numbers(cells: list[Any]) -> bool:
+    """True when every cell reads as a finite number (a data row taken for a header)."""
+    try:
+        return bool(cells) and all(math.isfinite(float(str(c))) for c in cells)
+    except ValueError:
+        return False
 
 
 def _float(text: Any, where: str) -> float:

@@ -73,9 +73,14 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
     }
     names = {str(n).lower(): n for n in extra_cols}
     bad = table.nan_rows()
-    if bad.any():
+    if bad.any():  # a map from fewer samples than the file holds is never made silently
+        lines = np.flatnonzero(bad) + 2  # file line numbers: the header is line 1
+        shown = ", ".join(str(v) for v in lines[:10]) + (" ..." if lines.size > 10 else "")
         raise bad_input(
-            "SAMPLES rows", f"{int(bad.sum())} with NaN x, y or z", "finite values", "fix them"
+            "SAMPLES rows",
+            f"{lines.size} of {table.n} with an empty or NaN x, y or z (file lines {shown})",
+            "a finite x, y and z on every row",
+            f"fill or delete those lines of {path.name}",
         )
     xy, note, map_crs = table.xy, "", table.crs
     if map_crs.is_geographic:

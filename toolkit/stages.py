@@ -71,11 +71,15 @@ def map_grid(
     if bounds is None:
         if samples is None or samples.n == 0:
             raise bad_input("bounds", None, "map bounds or samples", "pass --bounds W S E N")
+        extent = (*samples.xy.min(axis=0), *samples.xy.max(axis=0))
+        what = "the samples' extent"
         lo = np.floor(samples.xy.min(axis=0) / resolution) * resolution
         hi = np.ceil(samples.xy.max(axis=0) / resolution) * resolution
         hi = np.maximum(hi, lo + resolution)
         bounds = (lo[0], lo[1], hi[0], hi[1])
-    elif samples is not None and samples.n > 0:
+    else:
+        extent, what = bounds, "--bounds"
+    if bounds is not None and samples is not None and samples.n > 0:
         w, s, e, n = (float(b) for b in bounds)
         x, y = samples.xy[:, 0], samples.xy[:, 1]
         if not ((x >= w) & (x <= e) & (y >= s) & (y <= n)).any():
@@ -87,7 +91,33 @@ def map_grid(
                 f"(their box: {box})",
                 "check the order W S E N and that the bounds are in the survey's CRS",
             )
-    return Grid.from_bounds(tuple(float(b) for b in bounds), float(resolution), crs)
+    grid = Grid.from_bounds(tuple(float(b) for b in bounds), float(resolution), crs)
+    if min(grid.shape) < MIN_MAP_CELLS:  # a 1 x 1 map has no contours, mesh or slope
+        w, s, e, n = (float(v) for v in extent)
+        raise bad_input(
+            "--resolution",
+            f"{resolution:g} m",
+            f"a cell size giving at least {MIN_MAP_CELLS} x {MIN_MAP_CELLS} cells over "
+            f"{what} ({e - w:.4g} m x {n - s:.4g} m; this one gives {grid.ny} x {grid.nx})",
+            f"pass --resolution {_finest_allowed(extent):g} or less, or wider --bounds",
+        )
+    return grid
+
+
+#: Fewest cells along each axis of a map: contours, the mesh and the report's figures need
+#: at least 2 x 2 (a 1 x 1 map from ``--resolution`` larger than the site was fitted and
+#: then failed in the mesh export).
+MIN_MAP_CELLS = 2
+
+
+def _finest_allowed(bounds: tuple[float, float, float, float]) -> float:
+    """The largest cell size (rounded down to 2 significant digits) giving 2 x 2 cells."""
+    w, s, e, n = (float(b) for b in bounds)
+    size = min(e - w, n - s) / MIN_MAP_CELLS
+    if size <= 0:
+        return 0.0
+    digits = 10 ** (np.floor(np.log10(size)) - 1)
+    return float(np.floor(size / digits) * digits)
 
 
 @dataclass

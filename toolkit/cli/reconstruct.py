@@ -131,6 +131,7 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
     from ..export._files import previous_products, remove_stale, staged_folder
     from ..processing import prior_mean
     from ..products import write_map_products
+    from ..provenance import input_record
     from ..samples_io import read_samples
     from ..stages import certify_stage, map_grid, reconstruct_stage
 
@@ -168,6 +169,18 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
             "the cells (their 1-sigma is within 10 % of the prior's): the samples do not "
             "constrain most of this grid; narrow --bounds or add samples"
         )
+    # which files made the map, by name and SHA-256 (every product's metadata)
+    rec.product.attrs["inputs"] = json.dumps(
+        [
+            {k: r[k] for k in ("role", "name", "sha256")}
+            for r in (
+                input_record("samples", samples),
+                input_record("prior", prior),
+                input_record("checkpoints", cps),
+            )
+            if r is not None
+        ]
+    )
     cert = certify_stage(rec, cps, settings, seed) if cps is not None else None
     if cert is None and rec.heldout is not None:
         from ..certify import heldout_block
@@ -194,6 +207,10 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
 
         certificate_rows(table_out, cert)
     console.print(table_out)
+    if cert is not None:  # the held-out verdict in words (sigma too small / too large)
+        from ._progress import print_warnings
+
+        print_warnings(console, cert)
     console.print("wrote " + ", ".join(written))
     if removed:  # a run with --checkpoints before: its report.html described another map
         console.print(f"removed {', '.join(removed)} of an earlier run into {out_dir}")
