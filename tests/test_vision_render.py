@@ -164,3 +164,84 @@ def test_nodata_cells_are_filled_and_counted():
     assert np.isfinite(ren.radiance(R, c)).all()
     with pytest.raises(InputError):
         Renderer(dem(lambda X, Y: np.nan * X)[0], origin, CAM, Scene(), rng=0)
+
+
+def rough_dem():
+    """A 2 m DEM with 0.5 m of random relief and a 6 m ridge: triangle edges, occlusion
+    and sky in one frame."""
+    r = np.random.default_rng(7)
+    return dem(lambda X, Y: 100.0 + 0.5 * r.normal(size=X.shape) + 6.0 * (np.abs(X - 140) < 4))
+
+
+def test_image_cast_with_a_quarter_of_the_rays_equals_the_full_cast():
+    """ImageCaster casts the even pixels and takes the others from the plane of the triangle
+    their neighbouring samples hit: sky stays sky, and the hit distance equals Open3D's full
+    cast to float32 rounding (raycast.py's wedge argument) except behind an occluder narrower
+    than the sample spacing."""
+    import open3d as o3d
+
+    da, origin = rough_dem()
+    ren = Renderer(da, origin, CAM, Scene(), rng=0)
+    total = {"cast": 0, "plane": 0}
+    for yaw, c in (
+        (0.0, [60.0, 100.0, 102.0]),
+        (0.4, [30.0, 60.0, 101.0]),
+        (3.1, [190.0, 90.0, 103.0]),
+    ):
+        R, c = level_pose(c, yaw=yaw, pitch_deg=10.0)
+        d = ren._dirs @ R.T.astype(np.float32)
+        o = c - [0.0, 0.0, ren.z0]
+        t, counts = ren.caster.cast(o, d)
+        rays = np.empty((len(d), 6), np.float32)
+        rays[:, :3], rays[:, 3:] = o, d
+        full = ren.rc.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        np.testing.assert_array_equal(np.isfinite(t), np.isfinite(full))
+        hit = np.isfinite(full)
+        assert 0.2 < hit.mean() < 0.95  # ground and sky in the frame
+        off = np.abs(t[hit] - full[hit]) > 1e-5 * full[hit]
+        # an occluder under 2 px between two samples on one facet is missed (raycast.py):
+        # 1 of 15,121 hits on this rough DEM at f = 150 px; 0 of 4.8 M on the default site
+        assert off.mean() < 1e-3, off.sum()
+        assert (t[hit][off] > full[hit][off]).all()  # only ever a farther facet
+        for k in total:
+            total[k] += counts[k]
+    n = 3 * CAM.width_px * CAM.height_px
+    assert total["cast"] + total["plane"] == n
+    assert total["plane"] > 0.2 * n  # the saving is real (measured 43 % on the default site)
+
+
+def test_fast_radiance_equals_the_shading_formula_per_pixel():
+    """Renderer.radiance (float32, camera-relative lookups, plane-filled cast) against the
+    module docstring's formula evaluated in float64 through the public lookups
+    (ground_points, GlacierAlbedo.sample, the 4-channel shading raster):
+    ``gain (albedo (E_sun max(n.s, 0) vis + E_sky (1 + n_z) / 2 ao) haze + E_sky (1 - haze))``."""
+    da, origin = rough_dem()
+    for name in ("sunny_snow", "low_sun", "overcast_snow"):
+        ren = Renderer(da, origin, CAM, SCENES[name], rng=1)
+        sc = ren.scene
+        R, c = level_pose([60.0, 100.0, 102.0])
+        img = ren.radiance(R, c).ravel()
+        uv = ren._pix[::7]  # a seventh of the pixels
+        p = ren.ground_points(R, c, uv)
+        hit = np.isfinite(p[:, 0])
+        p = p[hit]
+        sh = ren._raster(ren._shade, p[:, 0], p[:, 1]).astype(float)
+        n0 = np.column_stack([sh[:, 0], sh[:, 1], np.sqrt(1 - sh[:, 0] ** 2 - sh[:, 1] ** 2)])
+        ray = p - c
+        th = np.linalg.norm(ray, axis=1)
+        cos_inc = np.abs(np.einsum("ij,ij->i", ray / th[:, None], n0))
+        fp = th / CAM.fx_px / np.sqrt(np.maximum(cos_inc, 0.05))
+        alb, slope = ren.albedo.sample(p[:, 0], p[:, 1], fp)
+        n = n0 - np.column_stack([slope, np.zeros(len(p))])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        light = (
+            sc.sun_irradiance
+            * np.clip(n @ ren.sun, 0, None)
+            * (sh[:, 3] if sc.sun_irradiance else 1)
+        )
+        light += sc.sky_irradiance * 0.5 * (1 + n[:, 2]) * sh[:, 2]
+        haze = np.exp(-th / sc.haze_m)
+        want = ren.gain * (alb * light * haze + sc.sky_irradiance * (1 - haze))
+        got = img[::7][hit]
+        err = np.abs(got - want)
+        assert np.median(err) < 0.01 and np.percentile(err, 99.9) < 0.5, (name, err.max())

@@ -147,54 +147,69 @@ class MipAtlas:
             (0.5 * scale - 0.5 + P + row + t * block).astype(np.float32)
             for t in range(len(pyramids))
         ]
+        # per pyramid, per level j: scale, x and y offsets of levels j and j + 1
+        nxt = np.minimum(np.arange(n) + 1, n - 1)
+        self._levels = [
+            np.column_stack(
+                [self.scale, self.off_x, oy, self.scale[nxt], self.off_x[nxt], oy[nxt]]
+            ).astype(np.float32)
+            for oy in self.off_y
+        ]
 
     def sample(self, lookups) -> list[np.ndarray]:
         """Trilinear lookups: ``lookups`` holds per pyramid ``(x, y, lod)``, texel coordinates
         at level 0 (n,) and level of detail (log2 of the footprint in texels, >= 0). Returns
-        per pyramid (n,) or (n, c) float32."""
+        per pyramid (n,) or (n, c) float32.
+
+        Coordinates are wrapped (periodic) or clamped in their own precision (float64, or
+        float32 when given float32: the renderer's camera-relative coordinates, ~1e-4 texel
+        within 18 m of the camera), then looked up in float32."""
         import cv2
 
-        total = 2 * sum(np.size(x) for x, _, _ in lookups)
         cols = 1024  # remap's maps must stay under 32767 a side
-        rows = max(-(-total // cols), 1)
-        mx = np.zeros(rows * cols, np.float32)
-        my = np.zeros(rows * cols, np.float32)
-        fracs, at = [], 0
+        # every (pyramid, level) block starts on a row of the maps: the blend below is one
+        # compiled pass over two equal-shaped images per pyramid (cv2.blendLinear)
+        nrows = [-(-np.size(x) // cols) for x, _, _ in lookups]
+        rows = max(2 * sum(nrows), 1)
+        mx = np.zeros((rows, cols), np.float32)
+        my = np.zeros((rows, cols), np.float32)
+        flat_x, flat_y = mx.reshape(-1), my.reshape(-1)
+        weights, r0 = [], 0
         for t, (x, y, lod) in enumerate(lookups):
-            x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-            if self.periodic:  # reduced in float64: float32 then keeps 1/32768 of a texel
-                x = x - np.floor(x * (1.0 / self.w0)) * self.w0  # np.mod, 6x faster
-                y = y - np.floor(y * (1.0 / self.h0)) * self.h0
+            x, y = np.asarray(x), np.asarray(y)
+            dt = np.float32 if x.dtype == np.float32 and y.dtype == np.float32 else np.float64
+            x, y = x.astype(dt, copy=False).ravel(), y.astype(dt, copy=False).ravel()
+            if self.periodic:  # x - floor(x / w) w: np.mod, 6x faster
+                x = x - np.floor(x * dt(1.0 / self.w0)) * dt(self.w0)
+                y = y - np.floor(y * dt(1.0 / self.h0)) * dt(self.h0)
             else:  # clamped at level 0 = the edge texel of every level (the frame)
                 x, y = np.clip(x, 0.0, self.w0 - 1.0), np.clip(y, 0.0, self.h0 - 1.0)
-            x, y = x.astype(np.float32), y.astype(np.float32)
-            lod = np.clip(lod, 0.0, self.n_levels - 1.001)
-            l0 = lod.astype(np.intp)  # floor: lod >= 0
-            fracs.append((lod - l0).astype(np.float32))
-            for j in (l0, l0 + 1):
-                sl = slice(at, at + x.size)
-                s = self.scale[j]
-                np.multiply(x, s, out=mx[sl])
-                mx[sl] += self.off_x[j]
-                np.multiply(y, s, out=my[sl])
-                my[sl] += self.off_y[t][j]
-                at += x.size
-        v = cv2.remap(
-            self.atlas,
-            mx.reshape(rows, cols),
-            my.reshape(rows, cols),
-            cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_REPLICATE,
-        ).reshape(rows * cols, -1)
-        out, at = [], 0
-        for (x, _, _), f in zip(lookups, fracs, strict=True):
+            x, y = x.astype(np.float32, copy=False), y.astype(np.float32, copy=False)
+            lod = np.clip(np.asarray(lod, np.float32).ravel(), 0.0, self.n_levels - 1.001)
+            l0 = lod.astype(np.int32)  # floor: lod >= 0
+            n, nr = x.size, nrows[t]
+            f = np.zeros(nr * cols, np.float32)
+            np.subtract(lod, l0, out=f[:n])
+            weights.append(f.reshape(nr, cols))
+            tab = np.take(self._levels[t], l0, axis=0)  # (n, 6): one gather per lookup
+            for c in (0, 3):  # levels l0 and l0 + 1: x 2^-j + offset_j
+                sl = slice(r0 * cols, r0 * cols + n)
+                np.multiply(x, tab[:, c], out=flat_x[sl])
+                flat_x[sl] += tab[:, c + 1]
+                np.multiply(y, tab[:, c], out=flat_y[sl])
+                flat_y[sl] += tab[:, c + 2]
+                r0 += nr
+        v = cv2.remap(self.atlas, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out, r0 = [], 0
+        for (x, _, _), f, nr in zip(lookups, weights, nrows, strict=True):
             n = np.size(x)
-            v0, v1 = v[at : at + n], v[at + n : at + 2 * n]
-            res = v1 - v0  # v0 (1 - f) + v1 f, in place
-            res *= f[:, None]
+            v0, v1 = v[r0 : r0 + nr], v[r0 + nr : r0 + 2 * nr]
+            res = v1 - v0  # v0 (1 - f) + v1 f
+            res *= f[..., None] if res.ndim == 3 else f
             res += v0
+            res = res.reshape(nr * cols, -1)[:n]
             out.append(res[:, 0] if self.flat else res)
-            at += 2 * n
+            r0 += 2 * nr
         return out
 
 
@@ -259,7 +274,12 @@ class GlacierAlbedo:
                 azimuth_deg=p.wind_azimuth_deg - rot,
             )
             amp = p.sastrugi_height_m / math.sqrt(2.0)
-            c = np.concatenate([grain[..., None], slope * amp], axis=-1)
+            # slopes rotated from the tile frame to east / north once here (filtering and
+            # lookups are linear): the lookup of both tiles is then one sum
+            r = math.radians(rot)
+            se = math.cos(r) * slope[..., 0] - math.sin(r) * slope[..., 1]
+            sn = math.sin(r) * slope[..., 0] + math.cos(r) * slope[..., 1]
+            c = np.stack([grain, se * amp, sn * amp], axis=-1).astype(np.float32)
             self.tiles.append((texel, math.radians(rot)))
             tile_levels.append(pyramid(c, periodic=True))
         # both tiles in one atlas: one remap for every level of both (docs/vision.md)
@@ -308,32 +328,51 @@ class GlacierAlbedo:
     def sample(self, x: np.ndarray, y: np.ndarray, footprint: np.ndarray):
         """Albedo (n,) and micro-relief slopes (n, 2) at local ground points ``x, y`` (m),
         each filtered over ``footprint`` (m, the pixel's size on the ground)."""
+        x, y = np.asarray(x, float).ravel(), np.asarray(y, float).ravel()
+        o = (float(np.mean(x)), float(np.mean(y))) if x.size else (0.0, 0.0)
+        dx, dy = (x - o[0]).astype(np.float32), (y - o[1]).astype(np.float32)
+        albedo, sx, sy = self.sample_near(dx, dy, o, np.asarray(footprint, np.float32))
+        return albedo, np.column_stack([sx, sy])
+
+    def sample_near(self, dx: np.ndarray, dy: np.ndarray, origin, footprint: np.ndarray):
+        """:meth:`sample` at ``origin + (dx, dy)``: ``origin`` (east, north) in m (float64,
+        e.g. the camera centre), ``dx, dy`` (n,) float32 offsets (m) and ``footprint`` (n,)
+        float32 (m). Returns float32 albedo (n,) and slopes dz/dx, dz/dy (n,) each.
+
+        The tile phase of ``origin`` is reduced in float64, the offsets in float32: texel
+        coordinates keep ~1e-4 texel within 18 m of the origin."""
         p = self.params
-        log_fp = np.log2(np.maximum(footprint, 1e-6))  # lod = log2(footprint / texel) >= 0
+        f32 = np.float32
+        ox, oy = float(origin[0]), float(origin[1])
+        log_fp = np.log2(np.maximum(footprint, f32(1e-6)))  # lod = log2(footprint / texel)
+        inv = f32(1.0 / self.cell)
         (base,) = self.base.sample(
             [
                 (
-                    (x - self.x0) / self.cell,
-                    (y - self.y0) / self.cell,
-                    np.maximum(log_fp - math.log2(self.cell), 0.0),
+                    dx * inv + f32((ox - self.x0) / self.cell),
+                    dy * inv + f32((oy - self.y0) / self.cell),
+                    np.maximum(log_fp - f32(math.log2(self.cell)), f32(0.0)),
                 )
             ]
         )
-        albedo, bare = base[:, 0], base[:, 1]
         lookups = []
+        tile = float(self.TILE)
         for texel, rot in self.tiles:
             c, s = math.cos(rot), math.sin(rot)
-            tx, ty = (c * x + s * y) / texel, (-s * x + c * y) / texel
-            lookups.append((tx, ty, np.maximum(log_fp - math.log2(texel), 0.0)))
-        grain = np.zeros_like(albedo)
-        slope = np.zeros((x.size, 2), np.float32)
-        for (_, rot), v in zip(self.tiles, self.tile_atlas.sample(lookups), strict=True):
-            c, s = math.cos(rot), math.sin(rot)
-            grain += v[:, 0]
-            sl = v[:, 1:3]  # slopes in the tile frame -> rotate back to east / north
-            slope[:, 0] += c * sl[:, 0] - s * sl[:, 1]
-            slope[:, 1] += s * sl[:, 0] + c * sl[:, 1]
-        contrast = p.grain_contrast + bare * (p.ice_grain_contrast - p.grain_contrast)
-        albedo = albedo * (1.0 + contrast * grain * 0.7071)
-        slope *= (1.0 - 0.8 * bare)[:, None]  # bare ice is smoother than wind-packed snow
-        return np.clip(albedo, 0.02, 1.0), slope
+            px = math.fmod((c * ox + s * oy) / texel, tile)  # the origin's phase, float64
+            py = math.fmod((-s * ox + c * oy) / texel, tile)
+            if rot == 0.0:
+                tx, ty = dx * f32(1.0 / texel), dy * f32(1.0 / texel)
+            else:
+                tx = dx * f32(c / texel) + dy * f32(s / texel)
+                ty = dy * f32(c / texel) - dx * f32(s / texel)
+            tx += f32(px)
+            ty += f32(py)
+            lookups.append((tx, ty, np.maximum(log_fp - f32(math.log2(texel)), f32(0.0))))
+        v1, v2 = self.tile_atlas.sample(lookups)
+        v1 += v2  # grain, slope east, slope north (slopes rotated when the tiles were built)
+        bare = base[:, 1]
+        contrast = bare * f32(p.ice_grain_contrast - p.grain_contrast) + f32(p.grain_contrast)
+        albedo = base[:, 0] * (1.0 + contrast * v1[:, 0] * f32(0.7071))
+        smooth = 1.0 - f32(0.8) * bare  # bare ice is smoother than wind-packed snow
+        return np.clip(albedo, 0.02, 1.0), v1[:, 1] * smooth, v1[:, 2] * smooth
