@@ -251,6 +251,7 @@ def run_scenario(
         "metrics": metrics,
         "certificate": {k: cert[k] for k in cert if k not in ("scenario", "truth_metrics")},
         "timings_s": res.timings,
+        "localization_timings_s": pres.summary.get("localization_timings_s", {}),
         "products": pres.products,  # what the next run into ``out`` may replace
     }
     if "site_dem" in truth.attrs:  # kind = "dem": the CRS, bounds and nodata, stated
