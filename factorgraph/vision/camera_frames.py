@@ -63,16 +63,23 @@ class ImageFolder:
     ----------
     files : dict
         Keyframe index -> path of its frame.
+    folder : Path or None
+        The folder (its ``tracks.npz``, when stored, may be reused: :mod:`.track_cache`).
     skipped : Counter
         ``no_matching_keyframe``, ``duplicate_keyframe``, ``missing_file``, ``unreadable``,
         ``wrong_size``, ``keyframe_without_frame`` (the last three counted while iterating).
     """
 
     def __init__(
-        self, files: dict[int, Path], n_keyframes: int, camera: CameraModel | None, skipped: Counter
+        self,
+        files: dict[int, Path],
+        n_keyframes: int,
+        camera: CameraModel | None,
+        skipped: Counter,
+        folder: Path | None = None,
     ):
         self.files, self.n_keyframes = files, n_keyframes
-        self.camera, self.skipped = camera, skipped
+        self.camera, self.skipped, self.folder = camera, skipped, folder
 
     def __len__(self) -> int:
         return self.n_keyframes
@@ -158,4 +165,4 @@ def read_frames(
             skipped["duplicate_keyframe"] += 1
         else:
             files[int(k)] = folder / name
-    return ImageFolder(files, len(t), camera, skipped)
+    return ImageFolder(files, len(t), camera, skipped, folder)

@@ -15,8 +15,9 @@ from terrain.errors import bad_input
 from ..log import MeasurementLog
 from ..sensors import CameraModel, SensorSuite
 from ..simulate import simulate_traverse
-from .camera_frames import write_frames
+from .camera_frames import read_frames, write_frames
 from .render import VISION_CAMERA, Renderer, Scene, render_frames
+from .track_cache import save_tracks
 from .tracking import FeatureTracks, TrackParams, track_features
 
 __all__ = ["ImageRun", "attach_tracks", "simulate_images", "track_truth", "vision_sensors"]
@@ -146,7 +147,9 @@ def simulate_images(
     params : TrackParams, optional
         Front-end settings.
     images_dir : path, optional
-        Also write the frames there (PNG + ``timestamps.csv``).
+        Also write the frames there (PNG + ``timestamps.csv``) and the tracks with the
+        digest of their inputs (``tracks.npz``: :mod:`.track_cache`), which
+        :func:`track_features` reuses on the same frames, camera, parameters and odometry.
     """
     sensors = sensors if sensors is not None else vision_sensors()
     if not isinstance(sensors, SensorSuite):
@@ -160,7 +163,12 @@ def simulate_images(
     t0 = time.perf_counter()
     tracks = track_features(stream, sensors.camera, params, odometry=ideal.odometry)
     total = time.perf_counter() - t0
+    timings = {"render_setup_s": setup_s, "render_s": timed.s, "track_s": total - timed.s}
+    if images_dir is not None:  # beside the frames: localize reuses them (track_cache.py)
+        t0 = time.perf_counter()
+        folder = read_frames(images_dir, ideal.t, sensors.camera)
+        save_tracks(images_dir, tracks, folder, sensors.camera, ideal.odometry)
+        timings["save_tracks_s"] = time.perf_counter() - t0
     xyz, err = track_truth(renderer, tracks, renderer.poses)
     run_log = attach_tracks(ideal, tracks, xyz)
-    timings = {"render_setup_s": setup_s, "render_s": timed.s, "track_s": total - timed.s}
     return ImageRun(run_log, ideal, tracks, err, renderer, timings)

@@ -97,6 +97,9 @@ class FeatureTracks:
     per_frame : list of dict
         Per frame: ``k, features, matches, inliers, tracked, new, ms``.
     params : TrackParams
+    source : str
+        ``tracked`` (with why stored tracks were not used, when a folder was given) or
+        ``reused <folder>/tracks.npz (inputs sha256 ...)`` (:mod:`.track_cache`).
     """
 
     k: np.ndarray
@@ -105,6 +108,7 @@ class FeatureTracks:
     counts: Counter
     per_frame: list[dict[str, Any]]
     params: TrackParams = field(default_factory=TrackParams)
+    source: str = "tracked"
 
     def table(self) -> dict[str, np.ndarray]:
         """The observations table (``k, landmark_id, u_px, v_px``)."""
@@ -295,6 +299,7 @@ def track_features(
     camera: CameraModel,
     params: TrackParams | None = None,
     odometry: np.ndarray | None = None,
+    reuse: bool = True,
 ) -> FeatureTracks:
     """Track features through an image sequence.
 
@@ -311,6 +316,11 @@ def track_features(
         The log's odometry (``MeasurementLog.odometry``): with it, matching is guided by the
         predicted motion of the ground (:func:`predict_motion`); without it, every feature
         competes with every other.
+    reuse : bool
+        When ``images`` is a folder (:func:`factorgraph.vision.read_frames`) holding tracks
+        stored by :func:`factorgraph.vision.track_cache.save_tracks` from the same frame
+        bytes, camera, parameters and odometry, return those (``source`` says so) instead
+        of tracking again; any other folder is tracked.
 
     Returns
     -------
@@ -323,6 +333,14 @@ def track_features(
     params = params or TrackParams()
     if not isinstance(camera, CameraModel):
         raise bad_input("camera", type(camera).__name__, "a CameraModel", "")
+    source = "tracked"
+    if reuse and hasattr(images, "folder") and hasattr(images, "files"):  # an ImageFolder
+        from .track_cache import load_tracks
+
+        stored, why = load_tracks(images, camera, params, odometry)
+        if stored is not None:
+            return stored
+        source = f"tracked (stored tracks: {why})"
     det = _detector(params)
     binary = params.detector == "orb"
     clahe = cv2.createCLAHE(params.clahe_clip, (params.clahe_tiles, params.clahe_tiles))
@@ -450,4 +468,4 @@ def track_features(
     uniq = id_all[keep][np.sort(first)]
     remap = {int(old): new for new, old in enumerate(uniq)}
     ids = np.array([remap[int(i)] for i in id_all[keep]], int)
-    return FeatureTracks(k_all[keep], ids, uv_all[keep], counts, per_frame, params)
+    return FeatureTracks(k_all[keep], ids, uv_all[keep], counts, per_frame, params, source)

@@ -1,0 +1,141 @@
+"""Tracks stored beside the frames they came from, reused only for the same inputs.
+
+``glacimap simulate --camera images`` renders and tracks every keyframe; ``glacimap
+localize`` on that log ran the same front-end on the same frames again (the largest cost
+of the CLI image chain, docs/vision.md). :func:`save_tracks` writes the front-end's output
+into the images folder (``tracks.npz``) with a SHA-256 of everything that determines it:
+
+* the frames as the localizer reads them: for every keyframe, the file it is matched to
+  (:func:`factorgraph.vision.read_frames`) and that file's bytes (PNG is lossless: same
+  bytes, same pixels);
+* the camera model, the front-end parameters (:class:`TrackParams`) and the odometry that
+  guides the matching, as the log stores it (9 significant digits,
+  :func:`factorgraph.log.write_log`);
+* the front-end itself: the source of ``tracking.py`` and the OpenCV version.
+
+:func:`load_tracks` recomputes the digest from the folder and returns the stored tracks only
+when it is the same; otherwise (or when the file is absent or unreadable) the caller tracks
+the frames again, and the reason is returned. Not covered: a change of the front-end's
+behaviour outside ``tracking.py`` and OpenCV (e.g. numpy).
+
+The odometry enters at 9 significant digits because ``simulate`` tracks with the values in
+memory and ``localize`` reads them back from the CSV: both give the same digits, while the
+values differ by < 5e-10 relative (a guided-matching window moves by < 1e-6 px).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections import Counter
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from terrain.atomic import atomic_path
+
+from ..sensors import CameraModel
+from .camera_frames import ImageFolder
+from .tracking import FeatureTracks, TrackParams
+
+__all__ = ["TRACKS_FILE", "inputs_digest", "load_tracks", "save_tracks"]
+
+TRACKS_FILE = "tracks.npz"
+_FORMAT = "glacimap-tracks/1"
+
+
+def _frontend_version() -> str:
+    import cv2
+
+    src = (Path(__file__).parent / "tracking.py").read_bytes()
+    return hashlib.sha256(src).hexdigest() + " opencv " + cv2.__version__
+
+
+def inputs_digest(
+    frames: ImageFolder,
+    camera: CameraModel,
+    params: TrackParams,
+    odometry: np.ndarray | None,
+) -> str:
+    """SHA-256 (hex) of the front-end's inputs: ``frames`` (keyframe -> file name and bytes;
+    a missing file hashes as missing), ``camera``, ``params``, ``odometry`` (K-1, 6) at 9
+    significant digits (or none) and the front-end's version."""
+    h = hashlib.sha256()
+    h.update(_FORMAT.encode())
+    h.update(_frontend_version().encode())
+    h.update(json.dumps(asdict(camera), sort_keys=True).encode())
+    h.update(json.dumps(asdict(params), sort_keys=True).encode())
+    if odometry is None:
+        h.update(b"no odometry")
+    else:
+        odo = np.asarray(odometry, float)
+        h.update(repr(odo.shape).encode())
+        h.update(" ".join(f"{v:.9g}" for v in odo.ravel()).encode())
+    h.update(f"keyframes {frames.n_keyframes}".encode())
+    for k in sorted(frames.files):
+        path = frames.files[k]
+        h.update(f"\nk {k} {path.name} ".encode())
+        h.update(hashlib.sha256(path.read_bytes()).digest() if path.is_file() else b"missing")
+    return h.hexdigest()
+
+
+def save_tracks(
+    folder: str | Path,
+    tracks: FeatureTracks,
+    frames: ImageFolder,
+    camera: CameraModel,
+    odometry: np.ndarray | None,
+) -> str:
+    """Write ``tracks`` (made by ``tracks.params`` from ``frames`` with ``camera`` and
+    ``odometry``) into ``folder/tracks.npz`` (atomically) with the inputs' digest; returns
+    the digest."""
+    digest = inputs_digest(frames, camera, tracks.params, odometry)
+    meta = {
+        "format": _FORMAT,
+        "digest": digest,
+        "params": asdict(tracks.params),
+        "counts": dict(tracks.counts),
+        "per_frame": tracks.per_frame,
+    }
+    with atomic_path(Path(folder) / TRACKS_FILE) as tmp:
+        with open(tmp, "wb") as fh:  # np.savez would append .npz to the temporary name
+            np.savez_compressed(
+                fh,
+                k=tracks.k,
+                landmark_id=tracks.landmark_id,
+                uv=tracks.uv,
+                meta=np.array(json.dumps(meta, default=int)),
+            )
+    return digest
+
+
+def load_tracks(
+    frames: ImageFolder,
+    camera: CameraModel,
+    params: TrackParams,
+    odometry: np.ndarray | None,
+) -> tuple[FeatureTracks | None, str]:
+    """The tracks stored in ``frames``'s folder when they were made from the same inputs
+    (:func:`inputs_digest`), else ``None``; and why (``reused``, ``no stored tracks``,
+    ``unreadable``, ``inputs differ``)."""
+    folder = getattr(frames, "folder", None)
+    path = None if folder is None else Path(folder) / TRACKS_FILE
+    if path is None or not path.is_file():
+        return None, "no stored tracks"
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            k, lid, uv = z["k"], z["landmark_id"], z["uv"]
+    except Exception:  # a truncated or foreign file: track again
+        return None, "unreadable"
+    if meta.get("format") != _FORMAT or meta.get("digest") != inputs_digest(
+        frames, camera, params, odometry
+    ):
+        return None, "inputs differ"
+    source = f"reused {path} (inputs sha256 {meta['digest'][:12]})"
+    tracks = FeatureTracks(
+        k.astype(int), lid.astype(int), uv.astype(float), Counter(meta["counts"]),
+        meta["per_frame"], params, source=source,
+    )  # fmt: skip
+    return tracks, "reused"

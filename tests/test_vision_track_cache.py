@@ -1,0 +1,104 @@
+"""Tracks stored beside the frames (``images/tracks.npz``) are reused by the front-end only
+for the same frame bytes, camera, parameters, odometry and front-end (track_cache.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from factorgraph import SensorSuite
+from factorgraph.log import read_log, write_log
+from factorgraph.vision import (
+    SCENES,
+    TrackParams,
+    read_frames,
+    simulate_images,
+    track_features,
+    vision_sensors,
+)
+from factorgraph.vision.track_cache import TRACKS_FILE, inputs_digest, load_tracks
+from terrain.synthetic import default_site
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """8 keyframes 2 m apart on the default site, rendered in sun, frames and tracks written."""
+    root = tmp_path_factory.mktemp("track_cache")
+    dem = default_site(2.0)
+    x, y = dem.x.values, dem.y.values
+    wp = np.array([[x[40], y[150]], [x[40] + 14.0, y[150] + 2.0]])
+    sensors = vision_sensors(SensorSuite(keyframe_dt_s=2.0))
+    r = simulate_images(dem, wp, sensors, 0, SCENES["sunny_snow"], images_dir=root / "images")
+    write_log(r.log, root / "log")  # the log as glacimap localize reads it (CSV, 9 digits)
+    return r, root
+
+
+def _same(a, b):
+    return (
+        np.array_equal(a.k, b.k)
+        and np.array_equal(a.landmark_id, b.landmark_id)
+        and np.array_equal(a.uv, b.uv)
+    )
+
+
+def test_the_log_read_back_reuses_the_stored_tracks_which_equal_a_fresh_tracking(run):
+    r, root = run
+    assert (root / "images" / TRACKS_FILE).is_file() and r.tracks.n_tracks > 20
+    log = read_log(root / "log")  # odometry from the CSV: differs in the 10th digit
+    assert not np.array_equal(log.odometry, r.log.odometry)
+    cam = log.sensors.camera
+    frames = read_frames(root / "images", log.t, cam)
+    reused = track_features(frames, cam, odometry=log.odometry)
+    assert reused.source.startswith("reused") and _same(reused, r.tracks)
+    assert reused.counts == r.tracks.counts
+    # the honesty condition: tracking the folder again gives the very same tracks
+    fresh = track_features(frames, cam, odometry=log.odometry, reuse=False)
+    assert fresh.source == "tracked" and _same(fresh, r.tracks)
+
+
+def test_any_changed_input_changes_the_digest(run, tmp_path):
+    r, root = run
+    log = read_log(root / "log")
+    cam = log.sensors.camera
+    frames = read_frames(root / "images", log.t, cam)
+    base = inputs_digest(frames, cam, TrackParams(), log.odometry)
+    assert base == inputs_digest(frames, cam, TrackParams(), r.log.odometry)  # 9 digits
+    odo = log.odometry.copy()
+    odo[3, 3] += 1e-6
+    changed = [
+        inputs_digest(frames, cam, TrackParams(clahe=True), log.odometry),
+        inputs_digest(frames, dataclasses.replace(cam, fx_px=601.0), TrackParams(), odo),
+        inputs_digest(frames, cam, TrackParams(), odo),
+        inputs_digest(frames, cam, TrackParams(), None),
+    ]
+    files = dict(frames.files)
+    files[7] = tmp_path / "absent.png"
+    frames.files, saved = files, frames.files
+    changed.append(inputs_digest(frames, cam, TrackParams(), log.odometry))
+    frames.files = saved
+    assert len({base, *changed}) == 1 + len(changed)
+
+
+def test_a_changed_frame_or_a_broken_file_is_tracked_again(run, tmp_path):
+    import shutil
+
+    import cv2
+
+    r, root = run
+    log = read_log(root / "log")
+    cam = log.sensors.camera
+    images = tmp_path / "images"
+    shutil.copytree(root / "images", images)
+    img = cv2.imread(str(images / "frame_000004.png"), cv2.IMREAD_GRAYSCALE)
+    img[300, 320] ^= 1  # one grey level of one pixel
+    cv2.imwrite(str(images / "frame_000004.png"), img)
+    frames = read_frames(images, log.t, cam)
+    assert load_tracks(frames, cam, TrackParams(), log.odometry) == (None, "inputs differ")
+    tr = track_features(frames, cam, odometry=log.odometry)
+    assert tr.source == "tracked (stored tracks: inputs differ)"
+    (images / TRACKS_FILE).write_bytes(b"PK\x03\x04 truncated")
+    assert load_tracks(frames, cam, TrackParams(), log.odometry) == (None, "unreadable")
+    (images / TRACKS_FILE).unlink()
+    assert load_tracks(frames, cam, TrackParams(), log.odometry) == (None, "no stored tracks")
