@@ -19,10 +19,17 @@ elevation data, downloaded with ``apt-get download`` and unpacked with ``dpkg -x
             strongly anisotropic (long parallel ridges); longitude/latitude.
 ``topobathy`` matplotlib's ``sample_data/topobathy.npz``: 91 x 120 at 1 arc-minute, the
             Strait of Georgia (topography and bathymetry); longitude/latitude.
+``volcano`` r-base-core's ``datasets`` (lazy-load database): R's ``volcano``, Maunga Whau,
+            Auckland, digitised from a topographic map on a 10 m grid, 87 x 61 (870 m x 610
+            m, relief 101 m); local metres.
+``bei``     r-cran-spatstat.data ``bei.extra$elev`` (R lazy-load database ``data/Rdata.rdb``
+            with its index ``Rdata.rdx``): a 101 x 201 ground survey at 5 m of the 1000 m x
+            500 m Barro Colorado Island forest plot, Panama (relief 40 m); local metres.
 
 The two matplotlib files ship with matplotlib (a glacimap dependency), so they need no
 registry: sites made from them were never used to choose glacimap's defaults (added in
-session 6 as held-back terrain, docs/terrain.md "Two DEMs held back").
+session 6 as held-back terrain, docs/terrain.md "Two DEMs held back"). ``bei`` and
+``volcano`` were added in session 7 the same way: held back, never used to choose anything.
 
 Files are cached under ``$GLACIMAP_DATA`` (default ``~/.cache/glacimap/real-dems``).
 :class:`RealDataUnavailable` says why when the registry cannot be reached; tests and
@@ -64,11 +71,23 @@ PACKAGES = {
         "prism": "usr/lib/R/site-library/fields/data/PRISMelevation.rda",
         "glacier": "usr/lib/R/site-library/fields/data/glacier.rda",
     },
+    # an R lazy-load database: the objects (.rdb) and their index (.rdx), cached side by side
+    "r-cran-spatstat.data": {"bei": "usr/lib/R/site-library/spatstat.data/data/Rdata.rdb"},
+    "r-base-core": {"volcano": "usr/lib/R/library/datasets/data/Rdata.rdb"},
 }
-FILES = {name: Path(rel).name for files in PACKAGES.values() for name, rel in files.items()}
+#: Cached file name of each DEM (a lazy-load database is renamed after its package).
+FILES = {
+    name: (f"{pkg.removeprefix('r-cran-')}.rdb" if rel.endswith(".rdb") else Path(rel).name)
+    for pkg, files in PACKAGES.items()
+    for name, rel in files.items()
+}
+#: R objects read from a lazy-load database: DEM name -> (object, element).
+LAZYLOAD = {"bei": ("bei.extra", "elev"), "volcano": ("volcano", None)}
 #: Real DEMs that ship with matplotlib (``matplotlib.cbook.get_sample_data``).
 MATPLOTLIB = {"jacksboro": "jacksboro_fault_dem.npz", "topobathy": "topobathy.npz"}
 NAMES = tuple(FILES) + tuple(MATPLOTLIB)
+#: The frame of DEMs whose coordinates are metres in an unnamed local plane.
+LOCAL_TM = "+proj=tmerc +lat_0=0 +lon_0=0 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
 
 
 class RealDataUnavailable(RuntimeError):
@@ -102,11 +121,15 @@ def fetch(cache: Path | None = None) -> Path:
                 ) from exc
             deb = next(Path(tmp).glob(f"{pkg}_*.deb"))
             subprocess.run(["dpkg", "-x", str(deb), str(Path(tmp) / "x")], check=True)
-            for rel in files.values():
+            for name, rel in files.items():
                 src = Path(tmp) / "x" / rel
-                part = cache / (src.name + ".part")  # atomic: never a half-copied file
-                shutil.copyfile(src, part)
-                part.replace(cache / src.name)
+                pairs = [(src, FILES[name])]
+                if rel.endswith(".rdb"):  # the index travels with the database
+                    pairs.append((src.with_suffix(".rdx"), FILES[name][:-4] + ".rdx"))
+                for one, cached in pairs:
+                    part = cache / (cached + ".part")  # atomic: never a half-copied file
+                    shutil.copyfile(one, part)
+                    part.replace(cache / cached)
     return cache
 
 
@@ -118,12 +141,48 @@ def _read_rda(path: Path, name: str) -> dict:
         return rdata.read_rda(str(path))[name]
 
 
+def _r_xz(data: bytes) -> bytes:
+    """R's ``xz`` serialization: a raw LZMA2 stream (no xz container), preset 6
+    (``init_filters`` in R's ``src/main/connections.c``)."""
+    import lzma
+
+    filters = [{"id": lzma.FILTER_LZMA2, "preset": 6}]
+    return lzma.decompress(data, format=lzma.FORMAT_RAW, filters=filters)
+
+
+def _read_lazyload(rdb: Path, obj: str) -> dict:
+    """One object of an R lazy-load database (what ``lazyLoad`` reads): the ``.rdx`` index
+    (an RDS file) gives each object's byte offset and length in the ``.rdb``, where it is
+    stored as a 4-byte big-endian length and a compressed serialization: zlib, or (R's
+    ``compress = 2 / 3``) a type byte, ``"2"`` bzip2, ``"Z"`` xz, ``"0"`` none, then the data."""
+    import bz2
+    import zlib
+
+    import rdata
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "Wrong extension .rdx for file in RDS format"
+        index = rdata.conversion.convert(rdata.parser.parse_file(str(rdb.with_suffix(".rdx"))))
+        offset, length = (int(v) for v in index["variables"][obj])
+        with open(rdb, "rb") as f:
+            f.seek(offset)
+            blob = f.read(length)
+        if int(np.ravel(index["compressed"])[0]) in (2, 3):
+            kind, body = blob[4:5], blob[5:]
+            unpack = {b"2": bz2.decompress, b"Z": _r_xz, b"0": bytes}[kind]
+        else:
+            body, unpack = blob[4:], zlib.decompress
+        parsed = rdata.parser.parse_data(unpack(body))
+        return rdata.conversion.convert(parsed, default_encoding="utf8")
+
+
 def load(name: str) -> xr.DataArray:
     """A real DEM as a north-up ``DataArray`` (dims y, x) in its own CRS, metres of elevation.
 
     ``olinda`` keeps its UTM 25S CRS; ``rm``, ``prism`` and ``lux`` are in EPSG:4326 (degrees: a
     geographic DEM, as a user's satellite product may be); ``glacier`` is gridded at 100 m
-    in a local transverse Mercator frame (its locations are km in an unnamed plane).
+    in a local transverse Mercator frame (its locations are km in an unnamed plane); ``bei``
+    and ``volcano`` are in their own metres, labelled with the same local transverse Mercator frame.
     """
     if name not in NAMES:
         raise ValueError(f"name: expected one of {NAMES}, got {name!r}")
@@ -145,6 +204,18 @@ def load(name: str) -> xr.DataArray:
         z = np.asarray(d["z"], float).T[::-1]  # R stores z[x, y] with y ascending
         x, y = np.asarray(d["x"], float), np.asarray(d["y"], float)[::-1]
         return _array(z, x, y, "EPSG:4326", name)
+    if name in LAZYLOAD:
+        obj, element = LAZYLOAD[name]
+        if name == "volcano":  # volcano[i, j]: i runs south -> north, j east -> west, 10 m
+            z = np.asarray(_read_lazyload(path, obj), float)[::-1, ::-1]
+            x = 10.0 * np.arange(z.shape[1])
+            y = 10.0 * np.arange(z.shape[0])[::-1]
+        else:  # a spatstat "im": v[row, col], rows = y ascending
+            im = _read_lazyload(path, obj)[element]
+            z = np.asarray(im["v"], float)[::-1]
+            x = np.asarray(im["xcol"], float)
+            y = np.asarray(im["yrow"], float)[::-1]
+        return _array(z, x, y, LOCAL_TM, name)
     from scipy.interpolate import griddata
 
     d = _read_rda(path, "glacier")
@@ -155,8 +226,7 @@ def load(name: str) -> xr.DataArray:
     y = np.arange(loc[:, 1].max() - res, loc[:, 1].min() + res, -res)
     xx, yy = np.meshgrid(x, y)
     z = griddata(loc, zpts, (xx, yy), method="cubic")
-    crs = "+proj=tmerc +lat_0=0 +lon_0=0 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
-    return _array(z, x, y, crs, name)
+    return _array(z, x, y, LOCAL_TM, name)
 
 
 def _load_matplotlib(name: str) -> xr.DataArray:

@@ -147,3 +147,34 @@ def test_matplotlib_real_dems(name, shape, lon, lat):
     site = real_dems.glacier_site(name)  # a 600 m site at 2 m, 25 m relief
     assert site.shape == (300, 300)
     assert float(site.max() - site.min()) == pytest.approx(25.0)
+
+
+@pytest.mark.parametrize(
+    "name, shape, cell, lo, hi",
+    [
+        # R's datasets::volcano: 87 x 61 at 10 m, range(volcano) = 94 195 (R's ?volcano)
+        ("volcano", (87, 61), 10.0, 94.0, 195.0),
+        # spatstat.data::bei.extra$elev: 101 x 201 pixels of 5 m over 1000 m x 500 m;
+        # range 119.81-159.48 m as R's summary(bei.extra$elev) prints it
+        ("bei", (101, 201), 5.0, 119.81, 159.48),
+    ],
+)
+def test_lazyload_real_dems(name, shape, cell, lo, hi):
+    """The R lazy-load databases (zlib: spatstat.data; raw xz: R's own datasets) decode to
+    north-up DEMs of the documented size, cell and range."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import real_dems
+
+    try:
+        dem = real_dems.load(name)
+    except real_dems.RealDataUnavailable as exc:
+        pytest.skip(f"real DEM {name!r} unavailable: {exc}")
+    assert dem.shape == shape and np.isfinite(dem.values).all()
+    assert float(dem.min()) == pytest.approx(lo) and float(dem.max()) == pytest.approx(hi)
+    assert np.all(np.diff(dem.x.values) == cell) and np.all(np.diff(dem.y.values) == -cell)
+    if name == "volcano":
+        # volcano[1, 1] = 100 and volcano[1, 61] = 103 (R), rows south -> north, columns
+        # east -> west: the first row is the south edge, so they land bottom right and left
+        assert dem.values[-1, -1] == 100.0 and dem.values[-1, 0] == 103.0
+    site = real_dems.glacier_site(name)
+    assert site.shape == (300, 300)
