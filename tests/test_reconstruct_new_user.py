@@ -122,3 +122,73 @@ def test_heldout_verdict_is_printed_in_words(site, tmp_path):
     assert verdicts, "this layout is expected to fail the held-out check"
     for v in verdicts:
         assert f"held-out check: {' '.join(v.split())}" in text
+
+
+def _like_raster(path: Path, crs: str, corners_utm, cell: float) -> Path:
+    """A constant raster in ``crs`` covering the UTM box ``corners_utm`` (W, S, E, N)."""
+    from pyproj import Transformer
+    from rasterio.transform import from_origin
+
+    w, s, e, n = corners_utm
+    tr = Transformer.from_crs(CRS, crs, always_xy=True)
+    xs, ys = tr.transform([w, e, w, e], [s, s, n, n])
+    nx = int((max(xs) - min(xs)) // cell)
+    ny = int((max(ys) - min(ys)) // cell)
+    profile = dict(driver="GTiff", width=nx, height=ny, count=1, dtype="float32", crs=crs)
+    transform = from_origin(min(xs), max(ys), cell, cell)
+    with rasterio.open(path, "w", transform=transform, **profile) as dst:
+        dst.write(np.full((ny, nx), 100.0, np.float32), 1)
+    return path
+
+
+def test_like_raster_in_another_projected_crs_gets_the_samples_projected(
+    samples_csv, site, tmp_path
+):
+    """Before: the GP was fitted, then predict_grid failed with 'samples.crs (EPSG:32608)
+    differs from grid.crs (EPSG:3338)', naming no option. Now the map is on the raster's
+    own cells and agrees with the truth as the UTM map does."""
+    from pyproj import Transformer
+
+    like = _like_raster(
+        tmp_path / "albers.tif", "EPSG:3338", (526000, 6475000, 526600, 6475600), 25.0
+    )
+    out = tmp_path / "map"
+    res, text = _invoke("reconstruct", str(samples_csv), "--crs", CRS, "--like", str(like),
+                        "--out", str(out))  # fmt: skip
+    assert res.exit_code == 0, text
+    assert "samples projected from EPSG:32608 to albers.tif's CRS EPSG:3338" in text
+    with rasterio.open(out / "elevation.tif") as src, rasterio.open(like) as ref:
+        assert src.crs == ref.crs and src.transform == ref.transform and src.shape == ref.shape
+        z = src.read(1)
+        rows, cols = np.mgrid[0 : src.height, 0 : src.width]
+        x, y = rasterio.transform.xy(src.transform, rows.ravel(), cols.ravel())
+    ux, uy = Transformer.from_crs("EPSG:3338", CRS, always_xy=True).transform(x, y)
+    ux, uy = np.asarray(ux), np.asarray(uy)
+    inside = (ux > 526020) & (ux < 526580) & (uy > 6475020) & (uy < 6475580)
+    err = z.ravel()[inside] - sample_dem(site, np.column_stack([ux[inside], uy[inside]]))
+    # 300 spot heights with 0.2 m noise on 25 m of relief: the UTM map of the same samples
+    # at 20 m reads ~0.5 m; a map in the wrong place would read metres
+    assert np.sqrt(np.mean(err**2)) < 1.0
+
+
+def test_like_raster_in_a_geographic_crs_is_refused_before_the_fit(samples_csv, tmp_path):
+    like = _like_raster(
+        tmp_path / "lonlat.tif", "EPSG:4326", (526000, 6475000, 526600, 6475600), 2e-4
+    )
+    t = time.perf_counter()
+    res, text = _invoke("reconstruct", str(samples_csv), "--crs", CRS, "--like", str(like),
+                        "--out", str(tmp_path / "o"))  # fmt: skip
+    assert time.perf_counter() - t < 5.0
+    assert isinstance(res.exception, InputError)
+    assert text.startswith("--like") or "--like: expected a raster in a projected CRS" in text
+    assert "gdalwarp -t_srs EPSG:32608" in text
+
+
+def test_duplicate_points_are_counted_not_merged_silently(samples_csv, tmp_path):
+    doubled = tmp_path / "doubled.csv"
+    df = pd.read_csv(samples_csv)
+    pd.concat([df, df.iloc[:40]]).to_csv(doubled, index=False)
+    res, text = _invoke("reconstruct", str(doubled), "--crs", CRS, "--resolution", "50",
+                        "--out", str(tmp_path / "m"))  # fmt: skip
+    assert res.exit_code == 0, text
+    assert "40 rows repeat the x, y of another row" in text and "300 samples from 340 rows" in text

@@ -75,7 +75,12 @@ def reconstruct(
         typer.Option("--bounds", help="Map extent W S E N (m, the samples' CRS)."),
     ] = None,
     like: Annotated[
-        Path | None, typer.Option("--like", help="Take the map grid from this raster.")
+        Path | None,
+        typer.Option(
+            "--like",
+            help="Take the map grid from this raster (projected CRS; the samples are "
+            "projected into it when it differs).",
+        ),
     ] = None,
     checkpoints: Annotated[
         Path | None, typer.Option("--checkpoints", help="Independent checkpoints: certify.")
@@ -132,19 +137,20 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
     from ..processing import prior_mean
     from ..products import write_map_products
     from ..provenance import input_record
-    from ..samples_io import read_samples
+    from ..samples_io import grid_like, read_samples
     from ..stages import certify_stage, map_grid, reconstruct_stage
 
     settings = load_scenario(config, {"seed": seed})
     table = read_samples(samples, crs)
     if table.note:
         console.print(f"[yellow]note:[/] {table.note}")
-    data = table.samples
-    if like is not None:
-        from ..certify_io import read_dem
-
-        grid = read_dem(like).grid
+    if like is not None:  # the raster's own cells; samples projected into its CRS if need be
+        grid, table, moved = grid_like(like, table)
+        if moved:
+            console.print(f"[yellow]note:[/] {moved}")
+        data = table.samples
     else:
+        data = table.samples
         grid = map_grid(bounds, resolution, data.crs, data)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
