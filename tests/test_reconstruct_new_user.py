@@ -192,3 +192,27 @@ def test_duplicate_points_are_counted_not_merged_silently(samples_csv, tmp_path)
                         "--out", str(tmp_path / "m"))  # fmt: skip
     assert res.exit_code == 0, text
     assert "40 rows repeat the x, y of another row" in text and "300 samples from 340 rows" in text
+
+
+def test_five_samples_make_a_map_whose_sigma_is_said_to_be_unchecked(samples_csv, tmp_path):
+    """Five spot heights made a map (exit 0) whose held-out check passed on 5 samples, while
+    only 34 % of the truth lay inside its +-1 sigma (seed 0, default site, 10 m grid). The
+    check now says a coverage from so few samples cannot judge the 1-sigma."""
+    five = tmp_path / "five.csv"
+    pd.read_csv(samples_csv).iloc[:5].to_csv(five, index=False)
+    out = tmp_path / "map"
+    res, text = _invoke("reconstruct", str(five), "--crs", CRS, "--resolution", "25",
+                        "--out", str(out))  # fmt: skip
+    assert res.exit_code == 0, text
+    held = json.loads((out / "certificate.json").read_text())["heldout_calibration"]
+    assert held["n"] == 5
+    assert any(v.startswith("only 5 held-out samples") for v in held["verdict"])
+    assert "held-out check: only 5 held-out samples" in text and "+-21 points" in text
+
+
+def test_enough_heldout_samples_add_no_sentence():
+    from toolkit.certify_heldout import _too_few
+
+    # binomial 1-sigma of a 68 % coverage: sqrt(0.683 * 0.317 / n) * 100 points
+    assert _too_few(86, 5.0) and not _too_few(87, 5.0)  # 5.02 and 4.99 points
+    assert not _too_few(3790, 5.0) and not _too_few(None, 5.0)
