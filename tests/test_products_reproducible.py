@@ -268,3 +268,24 @@ def test_same_seed_same_bytes_in_two_folders(tmp_path):
         {k: r[k] for k in ("role", "name", "sha256")} for r in cert["inputs"]["files"]
     ]
     assert str(tmp_path) not in (tmp_path / "a" / "certificate.json").read_text()
+
+
+def test_certificate_says_what_an_in_memory_dem_hash_is_of(tmp_path):
+    """run/process certify the map in memory: the certificate's dem.sha256 is of its arrays,
+    not of elevation.tif. It said 'dataset Dataset, sha256 ...' only, which a reader checking
+    the file's hash would find wrong. The report also lists the input files and hashes."""
+    from toolkit.certify import certify
+    from toolkit.report import write_report
+
+    grid = Grid.from_bounds((526000.0, 6475000.0, 526600.0, 6475600.0), 20.0, crs=CRS)
+    z = random_terrain(grid, relief=25.0, seed=1).values
+    ds = terrain_dataset(grid, z, np.full(grid.shape, 0.3), {"seed": 1})
+    rng = np.random.default_rng(0)
+    xy = rng.uniform([526050.0, 6475050.0], [526550.0, 6475550.0], (60, 2))
+    table = {"x": xy[:, 0], "y": xy[:, 1], "z": np.full(60, float(np.nanmean(z)))}
+    cert = certify(ds, table, crs=CRS, seed=0, n_boot=200)
+    assert "not a file" in cert["dem"]["sha256_of"] and "elevation_std" in cert["dem"]["sha256_of"]
+    cert["inputs"] = {"files": [{"role": "prior", "name": "dem.tif", "sha256": "ab" * 32}]}
+    html = write_report(tmp_path / "r.html", product=ds, certificate=cert).read_text()
+    assert "not a file" in html
+    assert "input: prior</th><td>dem.tif, sha256 <code>" + "ab" * 32 in html

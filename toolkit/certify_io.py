@@ -381,7 +381,14 @@ def _from_xarray(obj: Any, source: dict[str, Any]) -> DemRaster:
         h = hashlib.sha256(np.ascontiguousarray(z).tobytes())
         if s is not None:
             h.update(np.ascontiguousarray(s).tobytes())
-        source = {**source, "sha256": h.hexdigest()}
+        source = {
+            **source,
+            "sha256": h.hexdigest(),
+            # not a file's hash (a reader checking elevation.tif's would find another)
+            "sha256_of": "the in-memory map's float64 elevation"
+            + (" and elevation_std" if s is not None else "")
+            + " arrays (rows north first, C order), not a file",
+        }
     return DemRaster(grid, z, s, source, _provenance(dict(obj.attrs)))
 
 
