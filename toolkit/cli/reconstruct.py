@@ -169,7 +169,13 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
         if issubclass(w.category, DegenerateFitWarning):
             console.print(f"[yellow]warning (degenerate fit):[/] {w.message}")
     reverted = _reverted_fraction(rec)
-    if reverted > 0.5:
+    if reverted > 0.5 and prior is not None:  # by design: the DEM fills the gaps
+        console.print(
+            f"[yellow]note:[/] on {100 * reverted:.0f} % of the cells the samples add little "
+            "(their 1-sigma is within 10 % of the prior's): the map there is the prior DEM "
+            "with its fitted offset and scale, and its 1-sigma says so"
+        )
+    elif reverted > 0.5:  # a constant mean: a flat map where the samples do not reach
         console.print(
             f"[yellow]warning:[/] the map reverts to its prior mean on {100 * reverted:.0f} % of "
             "the cells (their 1-sigma is within 10 % of the prior's): the samples do not "
