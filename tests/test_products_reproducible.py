@@ -289,3 +289,18 @@ def test_certificate_says_what_an_in_memory_dem_hash_is_of(tmp_path):
     html = write_report(tmp_path / "r.html", product=ds, certificate=cert).read_text()
     assert "not a file" in html
     assert "input: prior</th><td>dem.tif, sha256 <code>" + "ab" * 32 in html
+
+
+def test_uncertified_contour_interval_includes_the_shared_offset():
+    """Without checkpoints the interval was 3 x the held-out RMSE, which only compares the
+    map with its own samples: the example field folder (consumer GPS, shared vertical offset
+    1-sigma 1.35 m, held-out RMSE 0.032 m) got 0.1 m contours. ASPRS 1990 Class 1:
+    CI = 3 RMSE_z, with RMSE_z what a checkpoint would see."""
+    from toolkit.products import contour_interval
+
+    cert: dict = {}
+    assert contour_interval(cert, 0.0317, 1.35) == 5.0  # 3 x 1.3504 = 4.05 -> 5 m
+    assert cert["contour_interval"]["certified_m"] is None
+    assert cert["contour_interval"]["expected_rmse_m"] == pytest.approx(np.hypot(0.0317, 1.35))
+    assert contour_interval({}, 0.0317, 0.0) == 0.1  # no shared offset: the held-out RMSE
+    assert contour_interval({"contour_interval": {"certified_m": 2.0}}, 0.03, 1.35) == 2.0

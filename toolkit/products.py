@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -103,20 +104,35 @@ def write_csv(path: Path, table: dict[str, np.ndarray]) -> Path:
     return path
 
 
-def contour_interval(cert: dict[str, Any], fallback_rmse_m: float | None) -> float:
-    """The certified interval, or (no checkpoints) 3 x the held-out RMSE rounded up to a
-    conventional interval (ASPRS 1990 Class 1, CI = 3 RMSE_z), stated as uncertified."""
+def contour_interval(
+    cert: dict[str, Any], fallback_rmse_m: float | None, shared_offset_std_m: float = 0.0
+) -> float:
+    """The certified interval, or (no checkpoints) 3 x the expected RMSE_z rounded up to a
+    conventional interval (ASPRS 1990 Class 1, CI = 3 RMSE_z), stated as uncertified.
+
+    Without checkpoints the expected RMSE_z is ``sqrt(heldout_rmse^2 + shared^2)``: the
+    held-out RMSE (m) only measures the map against its own samples, which all carry the
+    survey's shared vertical offset (1-sigma ``shared_offset_std_m``, m), and a checkpoint
+    would see both. The example field folder (consumer GPS, 2.5 m bias) got 0.1 m contours
+    from its held-out RMSE alone."""
     from .certify import CONVENTIONAL_INTERVALS_M
 
     ci = (cert.get("contour_interval") or {}).get("certified_m")
     if ci:
         return float(ci)
-    rmse = float(fallback_rmse_m or 1.0)
+    heldout = float(fallback_rmse_m or 1.0)
+    shared = float(shared_offset_std_m or 0.0)
+    rmse = math.hypot(heldout, shared)
     ci = next((c for c in CONVENTIONAL_INTERVALS_M if c >= 3 * rmse), 3 * rmse)
     cert["contour_interval"] = {
         "certified_m": None,
         "uncertified_m": float(ci),
-        "basis": "3 x held-out RMSE (no checkpoints: not certified)",
+        "expected_rmse_m": rmse,
+        "basis": (
+            f"3 x sqrt(held-out RMSE^2 + shared vertical offset 1-sigma^2) = 3 x "
+            f"sqrt({heldout:.3g}^2 + {shared:.3g}^2) m, rounded up to a conventional interval "
+            "(no checkpoints: not certified)"
+        ),
     }
     return float(ci)
 
@@ -142,7 +158,8 @@ def write_map_products(
     product = rec.product
     heldout_rmse = None if rec.heldout is None else rec.heldout.pooled["rmse_m"]
     cert = cert if cert is not None else {}
-    interval = contour_interval(cert, heldout_rmse)
+    shared = float(product.attrs.get("shared_vertical_offset_std_m", 0.0) or 0.0)
+    interval = contour_interval(cert, heldout_rmse, shared)
     paths: dict[str, Path] = {}
     certified = bool(cert.get("accuracy") or cert.get("heldout_calibration"))
     if certified:
