@@ -243,3 +243,34 @@ def test_gaps_filled_by_a_prior_dem_are_a_note_not_a_warning(site, tmp_path):
     res, text = _invoke(*common, "--out", str(tmp_path / "b"))
     assert res.exit_code == 0, text
     assert "warning: the map reverts to its prior mean" in text
+
+
+@pytest.fixture
+def lonlat_csv(samples_csv, tmp_path):
+    from pyproj import Transformer
+
+    df = pd.read_csv(samples_csv)
+    lon, lat = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True).transform(df.x, df.y)
+    path = tmp_path / "lonlat.csv"
+    pd.DataFrame({"lon": lon, "lat": lat, "h": df.z}).to_csv(path, index=False)
+    return path
+
+
+def test_lonlat_without_crs_is_told_to_pass_epsg_4326(lonlat_csv, tmp_path):
+    """The fix used to read 'pass --crs EPSG:32608' for a lon/lat table too."""
+    res, text = _invoke("reconstruct", str(lonlat_csv), "--out", str(tmp_path / "o"))
+    assert isinstance(res.exception, InputError)
+    assert "named lon/lat: pass --crs EPSG:4326" in text
+
+
+@pytest.mark.parametrize("header", ["lon,lat,h", "x,y,z"])
+def test_lonlat_read_as_metres_is_refused_naming_crs(lonlat_csv, tmp_path, header):
+    """lon/lat under --crs EPSG:32608 made a 1 x 1-cell map, then (with the resolution check)
+    asked for 0.0026 m cells: the cause is the CRS, and the error now says so."""
+    path = tmp_path / "as_metres.csv"
+    lines = lonlat_csv.read_text().splitlines()
+    path.write_text("\n".join([header, *lines[1:]]) + "\n")
+    res, text = _invoke("reconstruct", str(path), "--crs", CRS, "--out", str(tmp_path / "o"))
+    assert isinstance(res.exception, InputError)
+    assert text.startswith("--crs:") or "--crs: expected the CRS" in text
+    assert "look like longitude/latitude in degrees" in text and "EPSG:4326" in text

@@ -41,6 +41,50 @@ def _utm_for(lon: np.ndarray, lat: np.ndarray) -> CRS:
     return CRS.from_epsg(int(info[0].code))
 
 
+def _crs_hint(table: Any) -> str:
+    """The fix for a table without a CRS: EPSG:4326 when the columns are named or look like
+    longitude/latitude (degrees), else a projected CRS."""
+    named, degrees = _lonlat_named(table), _degree_like(table.xy)
+    if named or degrees:
+        why = "named lon/lat" if named else "all within +-180 / +-90"
+        return (
+            f"the coordinates are {why}: pass --crs EPSG:4326 (WGS 84 longitude/latitude; "
+            "they are then projected to their UTM zone), or the CRS they are in"
+        )
+    return "pass --crs EPSG:32608 (or the survey's projected CRS)"
+
+
+def _check_not_degrees(table: Any, path: Path) -> None:
+    """Refuse longitude/latitude read as metres of a projected CRS: columns named lon/lat, or
+    degree-like values spanning under 1 m (no survey does; a lon/lat table under
+    ``--crs EPSG:32608`` made a 1 x 1-cell map and then asked for 0.0026 m cells)."""
+    named = _lonlat_named(table)
+    span = float(np.ptp(table.xy, axis=0).max()) if table.n else 0.0
+    if not named and not (_degree_like(table.xy) and span < 1.0):
+        return
+    why = (
+        f"columns named {table.columns.get('x')}/{table.columns.get('y')}"
+        if named
+        else f"values within +-180 / +-90 spanning {span:.3g} units"
+    )
+    raise bad_input(
+        "--crs",
+        table.crs.to_string(),
+        f"the CRS {path.name}'s x, y are in; they look like longitude/latitude in degrees "
+        f"({why}), not metres of {table.crs.name}",
+        "pass --crs EPSG:4326 (they are then projected to their UTM zone), or fix the columns",
+    )
+
+
+def _lonlat_named(table: Any) -> bool:
+    return str(table.columns.get("x", "")).lower() in ("lon", "long", "longitude", "lng")
+
+
+def _degree_like(xy: np.ndarray) -> bool:
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    return xy.size > 0 and bool((np.abs(xy[:, 0]) <= 180).all() and (np.abs(xy[:, 1]) <= 90).all())
+
+
 def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
     """Read ``x, y, z[, z_var, track_z_std_m, shared_offset_std_m, t_s]`` (aliases as for
     checkpoints: easting/northing/elevation, lon/lat/height...). ``t_s`` (each sample's mean
@@ -63,7 +107,7 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
             None,
             f"the CRS of {path.name}'s coordinates (a crs column, a {path.stem}.crs sidecar or "
             "--crs)",
-            "pass --crs EPSG:32608 (or the survey's projected CRS); glacimap never guesses it",
+            _crs_hint(table) + "; glacimap never guesses it",
         )
     import pandas as pd  # a quoted crs column (a WKT with commas) is one field
 
@@ -83,6 +127,8 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
             f"fill or delete those lines of {path.name}",
         )
     xy, note, map_crs = table.xy, "", table.crs
+    if not map_crs.is_geographic:
+        _check_not_degrees(table, path)
     if map_crs.is_geographic:
         map_crs = _utm_for(xy[:, 0], xy[:, 1])
         tr = Transformer.from_crs(table.crs, map_crs, always_xy=True)
