@@ -165,6 +165,13 @@ def test_survey_layers_read_by_ogrinfo_and_validator(run, cert):
     text = subprocess.check_output(["ogrinfo", "-so", "-al", str(path)], text=True)
     assert "Layer name: trajectory" in text and "Layer name: landmarks" in text
     assert "kind: String" in text and "z_std: Real" in text and "kept: Integer(Boolean)" in text
+    # the layers state their fields' units, the vertical datum and what made them (they said
+    # nothing: a GIS user could not tell z_std's unit nor which survey they came from)
+    flat = " ".join(text.split())
+    assert "fields=trajectory: kind = 'estimated'" in flat and "sigma_max = largest" in flat
+    assert "vertical_datum=ellipsoidal height above the WGS 84 ellipsoid" in flat
+    roles = [f["role"] for f in cert["inputs"]["files"]]
+    assert f'"role": "{roles[0]}"' in flat and "seed=0" in flat
     _validate_gpkg(path)
     loc = cert["localization"]
     _, _, wkb, (kind,) = read(path, layer="trajectory")

@@ -185,6 +185,17 @@ def write_map_products(
     return paths
 
 
+#: The fields of ``survey.gpkg``'s layers, stated in its layer metadata (``fields``).
+SURVEY_FIELDS = (
+    "trajectory: kind = 'estimated' (iSAM2 keyframes) or 'true' (simulation only); x, y in the "
+    "layer CRS, m. landmarks: x, y, z (m; z a height on the vertical datum), landmark_id; "
+    "z_std = the elevation 1-sigma the map uses as the sample's noise, relative to the survey "
+    "(its shared vertical offset excluded, stated once in the map), m; sigma_max = largest "
+    "relative 1-sigma semi-axis of the position, m; n_views = camera views; kept = selected "
+    "for the map by the [select] rules (the reason for each rejection is in landmarks.csv)"
+)
+
+
 def write_products(
     out: Path,
     rec: Reconstruction,
@@ -203,6 +214,7 @@ def write_products(
     simulation only: the report's error map and calibration curve, the true path layer.
     """
     from .export import VectorLayer, write_vector_layers
+    from .export._product import provenance_strings
 
     est = loc.to_projected(loc.keyframe_xyz)
     t = sel.table
@@ -223,7 +235,14 @@ def write_products(
             kept=t["kept"],
         ),
     }
-    paths = {"survey": write_vector_layers(out / "survey.gpkg", layers, loc.log.crs)}
+    # what each field is and in which unit, with the map's provenance (seed, inputs and
+    # their SHA-256, software, vertical datum): the layers said nothing of either
+    meta = {
+        **provenance_strings(rec.product.attrs),
+        "fields": SURVEY_FIELDS,
+        "vertical_datum": str(rec.product.attrs.get("vertical_datum", "not stated")),
+    }
+    paths = {"survey": write_vector_layers(out / "survey.gpkg", layers, loc.log.crs, metadata=meta)}
     write_csv(out / "trajectory.csv", trajectory_table(loc))
     write_csv(out / "landmarks.csv", landmark_table(loc, sel))
     write_csv(out / "samples.csv", samples_table(sel))
