@@ -200,7 +200,7 @@ def test_image_cast_with_a_quarter_of_the_rays_equals_the_full_cast():
         assert 0.2 < hit.mean() < 0.95  # ground and sky in the frame
         off = np.abs(t[hit] - full[hit]) > 1e-5 * full[hit]
         # an occluder under 2 px between two samples on one facet is missed (raycast.py):
-        # 1 of 15,121 hits on this rough DEM at f = 150 px; 0 of 4.8 M on the default site
+        # 1 of 15,121 hits on this rough DEM at f = 150 px; 0 of 4.8 M hits on the default site
         assert off.mean() < 1e-3, off.sum()
         assert (t[hit][off] > full[hit][off]).all()  # only ever a farther facet
         for k in total:

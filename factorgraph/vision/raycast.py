@@ -13,10 +13,11 @@ pixel from the plane of the triangle both (or all four) of its neighbouring samp
 casts the rest (triangle edges, sky, the last row and column). The plane distance equals
 Embree's to float32 rounding. Not covered: an occluder narrower than the sample spacing that
 hides the triangle between two samples which both see it (a sliver of nearer terrain seen
-edge-on): that pixel shows the farther facet. Measured: 0 of 4.8 M pixels differ from the
-full cast (hit status or distance beyond 1e-5 relative) over the 21 keyframes of
-``benchmarks/vision.py``'s ``frontend`` traverse of the default site; 1 of 15,121 hits on
-``tests/test_vision_render.py``'s rough DEM (0.5 m random relief, f = 150 px).
+edge-on): that pixel shows the farther facet. Measured against the full cast over the 21
+keyframes of ``benchmarks/vision.py``'s ``frontend`` traverse of the default site: 0 of
+6.45 M pixels differ in hit status, 0 of the 4.8 M hits in distance beyond 1e-5 relative;
+1 of 15,121 hits on ``tests/test_vision_render.py``'s rough DEM (0.5 m random relief,
+f = 150 px).
 """
 
 from __future__ import annotations
