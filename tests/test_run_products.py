@@ -405,3 +405,13 @@ def test_contours_of_a_map_no_level_crosses(tmp_path):
     _validate_gpkg(tmp_path / "c.gpkg")
     assert len(read(tmp_path / "c.gpkg", layer="contour")[2]) == 0
     assert json.loads((tmp_path / "c.geojson").read_text())["features"] == []
+
+
+def test_point_tables_state_their_crs(run):
+    """trajectory.csv and landmarks.csv gave x, y without a CRS (samples.csv had a crs
+    column): a GIS import (QGIS delimited text, pandas + pyproj) had to guess it."""
+    import pandas as pd
+
+    for name in ("trajectory.csv", "landmarks.csv", "samples.csv"):
+        table = pd.read_csv(run / name)
+        assert table["crs"].unique().tolist() == ["EPSG:32608"], name

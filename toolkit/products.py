@@ -35,8 +35,8 @@ __all__ = [
 def trajectory_table(loc: LocalizationResult) -> dict[str, np.ndarray]:
     """One row per keyframe: ``k, t_s``, final estimate ``x, y, z`` (projected CRS, m), its
     marginal 1-sigma ``std_x, std_y, std_z`` (m), the online estimate ``online_x, online_y,
-    online_z``, the estimated GPS bias ``bias_x, bias_y, bias_z`` (bias model) and, in
-    simulation, the truth ``true_x, true_y, true_z``."""
+    online_z``, the estimated GPS bias ``bias_x, bias_y, bias_z`` (bias model), in
+    simulation the truth ``true_x, true_y, true_z``, and ``crs`` (of x, y, on every row)."""
     log = loc.log
     est = loc.to_projected(loc.keyframe_xyz)
     online = loc.to_projected(loc.online_xyz)
@@ -52,18 +52,27 @@ def trajectory_table(loc: LocalizationResult) -> dict[str, np.ndarray]:
         true = loc.to_projected(log.truth["xyz"])
         for i, a in enumerate("xyz"):
             out[f"true_{a}"] = true[:, i]
+    out["crs"] = _crs_column(log.crs, log.n_keyframes)  # as samples.csv: never guessed
     return out
+
+
+def _crs_column(crs: Any, n: int) -> np.ndarray:
+    """The CRS of a table's x, y, one value per row (a GIS import reads it from the file)."""
+    text = "" if crs is None else (crs if isinstance(crs, str) else crs.to_string())
+    return np.full(n, text)
 
 
 def landmark_table(loc: LocalizationResult, sel: LandmarkSelection) -> dict[str, np.ndarray]:
     """One row per landmark in the graph: the selection's diagnostics (``landmark_id, x, y, z,
     sigma_max_m, sigma_max_full_m, z_std_m, first_seen_distance_m, n_views, kept, reason``)
-    and, in simulation, the true position ``true_x, true_y, true_z`` (projected CRS, m)."""
+    and, in simulation, the true position ``true_x, true_y, true_z`` (projected CRS, m);
+    ``crs`` (of x, y, on every row)."""
     out = dict(sel.table)
     if "landmark_xyz" in loc.log.truth and loc.n_landmarks:
         true = loc.to_projected(loc.true_landmarks())
         for i, a in enumerate("xyz"):
             out[f"true_{a}"] = true[:, i]
+    out["crs"] = _crs_column(loc.log.crs, len(out["x"]))
     return out
 
 
