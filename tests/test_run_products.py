@@ -130,6 +130,9 @@ def test_contours_read_by_ogrinfo_and_validator(run, product, cert):
     assert "Layer name: contour" in text and "Geometry: Line String" in text
     assert "elev: Real" in text and "mean_std: Real" in text
     assert 'ID["EPSG",32608]' in text
+    flat = " ".join(text.split())  # each field and its unit, and the interval, stated
+    assert "fields=elev = contour elevation, m (ellipsoidal height" in flat
+    assert f"contour_interval_m={cert['contour_interval']['certified_m']:g}" in flat
     _validate_gpkg(path)
     _, _, wkb, (elev, index, mean_std) = read(path, layer="contour")
     assert len(wkb) > 0

@@ -124,8 +124,9 @@ def write_contours(
         Terrain product (``elevation``, ``elevation_std`` on ``(y, x)``, CRS in attrs).
     gpkg_path : path-like
         Output ``.gpkg``: layer ``contour`` (LineString, the product's CRS) with fields
-        ``elev`` (m), ``index`` (bool: index contour) and ``mean_std`` (m), provenance and
-        ``vertical_datum`` as layer metadata.
+        ``elev`` (m), ``index`` (bool: index contour) and ``mean_std`` (m), provenance,
+        ``vertical_datum``, ``contour_interval_m`` and ``fields`` (each field and its unit)
+        as layer metadata.
     interval_m : float
         Contour interval, metres (> 0).
     geojson_path : path-like, optional
@@ -146,7 +147,13 @@ def write_contours(
     product = read_product(ds)
     layer, _ = _contours(product, float(interval_m))
     crs = product.grid.crs
-    write_vector_layers(target, {"contour": layer}, crs, metadata=product.provenance)
+    fields = (
+        f"elev = contour elevation, m ({product.vertical_datum}); index = index contour "
+        f"(level a multiple of {INDEX_EVERY} x {float(interval_m):g} m); mean_std = "
+        "length-weighted mean of the map's total 1-sigma (elevation_std) along the line, m"
+    )
+    meta = {**product.provenance, "fields": fields, "contour_interval_m": f"{interval_m:g}"}
+    write_vector_layers(target, {"contour": layer}, crs, metadata=meta)
     paths = [str(target)]
     if geojson_path is not None:
         note = f"contour elevations (elev, m): {product.vertical_datum}"
