@@ -274,3 +274,27 @@ def test_lonlat_read_as_metres_is_refused_naming_crs(lonlat_csv, tmp_path, heade
     assert isinstance(res.exception, InputError)
     assert text.startswith("--crs:") or "--crs: expected the CRS" in text
     assert "look like longitude/latitude in degrees" in text and "EPSG:4326" in text
+
+
+def test_a_sigma_column_is_read_as_the_samples_noise(samples_csv, tmp_path):
+    """A 1-sigma column under any checkpoint alias (sigma, z_std, elevation_std...) was
+    silently ignored: 0.2 m spot heights were taken as exact (z_var = 0)."""
+    from toolkit.samples_io import read_samples
+
+    df = pd.read_csv(samples_csv)
+    for name in ("sigma", "elevation_std"):
+        path = tmp_path / f"{name}.csv"
+        df[["x", "y", "z"]].assign(**{name: 0.2, "note": "rtk"}).to_csv(path, index=False)
+        table = read_samples(path, CRS)
+        np.testing.assert_allclose(table.samples.z_var, 0.04)
+        assert f"column {name!r} read as each sample's 1-sigma (m)" in table.note
+        assert "columns not read: note" in table.note  # counted, not dropped silently
+    bare = tmp_path / "bare.csv"
+    df[["x", "y", "z"]].to_csv(bare, index=False)
+    assert "no z_var or 1-sigma column" in read_samples(bare, CRS).note
+    both = tmp_path / "both.csv"
+    df.assign(sigma=0.3).to_csv(both, index=False)  # z_var 0.04 against sigma 0.3
+    with pytest.raises(InputError, match="z_var and 'sigma'"):
+        read_samples(both, CRS)
+    df.assign(sigma=0.2).to_csv(both, index=False)  # they agree: fine
+    np.testing.assert_allclose(read_samples(both, CRS).samples.z_var, 0.04)

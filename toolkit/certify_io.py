@@ -45,7 +45,18 @@ COLUMN_ALIASES: dict[str, tuple[str, ...]] = {
     "x": ("x", "easting", "east", "e", "lon", "long", "longitude"),
     "y": ("y", "northing", "north", "n", "lat", "latitude"),
     "z": ("z", "elevation", "elev", "height", "h", "altitude", "alt"),
-    "z_std": ("z_std", "sigma_z", "z_sigma", "std_z", "sd_z", "z_sd", "sigma", "std", "sd"),
+    "z_std": (
+        "z_std",
+        "sigma_z",
+        "z_sigma",
+        "std_z",
+        "sd_z",
+        "z_sd",
+        "sigma",
+        "std",
+        "sd",
+        "elevation_std",  # the name of glacimap's own 1-sigma band and variable
+    ),
     "crs": ("crs", "srs"),
 }
 _ALIAS = {a: c for c, names in COLUMN_ALIASES.items() for a in names}

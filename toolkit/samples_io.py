@@ -134,7 +134,17 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
         tr = Transformer.from_crs(table.crs, map_crs, always_xy=True)
         xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
         note = f"geographic coordinates projected to {map_crs.to_string()} ({map_crs.name})"
-    z_var = extra_cols[names["z_var"]] if "z_var" in names else np.zeros(table.n)
+    z_var, noise_note = _noise(table, extra_cols, names)
+    unread = [c for c in table.ignored_columns if str(c).lower() not in OPTIONAL]
+    for extra_note in (
+        noise_note,
+        f"columns not read: {', '.join(map(str, unread))} (read: x, y, z, z_var or a 1-sigma "
+        f"column, {', '.join(OPTIONAL[1:])}, crs)"
+        if unread
+        else "",
+    ):
+        if extra_note:
+            note = f"{note}; {extra_note}" if note else extra_note
     track = extra_cols[names["track_z_std_m"]] if "track_z_std_m" in names else np.sqrt(z_var)
     shared = (
         float(extra_cols[names["shared_offset_std_m"]][0])
@@ -161,6 +171,34 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
         )
         note = f"{note}; {merged}" if note else merged
     return SampleTable(samples, np.asarray(track, float), shared, note)
+
+
+def _noise(table: Any, extra_cols: dict[str, np.ndarray], names: dict[str, str]):
+    """The samples' noise variance (m^2) and a note saying where it came from: ``z_var``
+    (m^2), else a 1-sigma column (m; the checkpoint aliases: sigma, z_std, elevation_std...)
+    squared, else zeros (the fitted nugget carries the noise). A 1-sigma column was ignored
+    before: 0.2 m spot heights were taken as exact."""
+    sigma_col = table.columns.get("z_std")
+    if "z_var" in names:
+        z_var = extra_cols[names["z_var"]]
+        if sigma_col is not None and not np.allclose(z_var, table.z_std**2, rtol=1e-6, atol=1e-12):
+            raise bad_input(
+                "SAMPLES columns",
+                f"z_var and {sigma_col!r}",
+                f"one noise column (z_var, m^2, or a 1-sigma in m), or two that agree (z_var = "
+                f"{sigma_col}^2)",
+                "drop one of them",
+            )
+        return z_var, ""
+    if sigma_col is not None:
+        return (
+            np.asarray(table.z_std, float) ** 2,
+            f"column {sigma_col!r} read as each sample's 1-sigma (m): z_var = {sigma_col}^2",
+        )
+    return (
+        np.zeros(table.n),
+        "no z_var or 1-sigma column: the samples' noise is left to the fitted nugget",
+    )
 
 
 def grid_like(path: str | Path, table: SampleTable) -> tuple[Any, SampleTable, str]:
