@@ -43,6 +43,9 @@ class TerrainMesh:
         Horizontal CRS of the grid.
     dropped_cells : int
         Quads (of the ``(ny - 1) * (nx - 1)``) left out because a corner was NaN.
+    elevation_std_relative : ndarray of shape (n,) or None
+        The map's own 1-sigma (the survey's shared offset left out, m), when the product has
+        it: where the data gaps are, which the total 1-sigma hides under the shared term.
     """
 
     vertices: np.ndarray
@@ -52,6 +55,7 @@ class TerrainMesh:
     origin: np.ndarray
     crs: CRS
     dropped_cells: int
+    elevation_std_relative: np.ndarray | None = None
 
 
 def terrain_mesh(ds: Any, origin: Any = None) -> TerrainMesh:
@@ -100,6 +104,11 @@ def _mesh(product: Product, origin: Any) -> TerrainMesh:
         origin=o,
         crs=grid.crs,
         dropped_cells=int((~ok).sum()),
+        elevation_std_relative=(
+            None
+            if product.elevation_std_relative is None
+            else product.elevation_std_relative.ravel()[used]
+        ),
     )
 
 
@@ -157,6 +166,8 @@ def _polydata(mesh: TerrainMesh, provenance: dict[str, str]):
     poly = pv.PolyData(mesh.vertices, faces=faces)
     poly.point_data["elevation"] = mesh.elevation
     poly.point_data["elevation_std"] = mesh.elevation_std
+    if mesh.elevation_std_relative is not None:
+        poly.point_data["elevation_std_relative"] = mesh.elevation_std_relative
     poly.field_data["origin"] = mesh.origin
     # VTK string arrays are ASCII only (the WKT's area of use has a degree sign).
     strings = {"crs": mesh.crs.to_string(), "crs_wkt": mesh.crs.to_wkt(), **provenance}
@@ -230,7 +241,8 @@ def write_mesh(
         the vertical datum of z.
     vtp_path : path-like, optional
         VTK XML PolyData: the same points, point arrays ``elevation`` (absolute, m) and
-        ``elevation_std`` (m), field data ``origin`` (3,), ``crs_wkt`` and provenance.
+        ``elevation_std`` (m; and ``elevation_std_relative`` when the product has it), field
+        data ``origin`` (3,), ``crs_wkt`` and provenance.
     png_path : path-like, optional
         Off-screen pyvista render coloured by ``elevation_std`` with a "1-sigma (m)" bar.
     origin : array-like of shape (3,), optional
