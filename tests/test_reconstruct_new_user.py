@@ -298,3 +298,18 @@ def test_a_sigma_column_is_read_as_the_samples_noise(samples_csv, tmp_path):
         read_samples(both, CRS)
     df.assign(sigma=0.2).to_csv(both, index=False)  # they agree: fine
     np.testing.assert_allclose(read_samples(both, CRS).samples.z_var, 0.04)
+
+
+def test_a_map_far_larger_than_the_survey_is_warned_before_the_fit(samples_csv, tmp_path):
+    """--bounds 10 km x 10 km at 4 m around a 600 m survey ran > 3 min (6.25 million cells)
+    without a word. Here at 100 m cells (fast): the warning comes first, with the share."""
+    res, text = _invoke("reconstruct", str(samples_csv), "--crs", CRS,
+                        "--bounds", "521000", "6470000", "531000", "6480000",
+                        "--resolution", "100", "--out", str(tmp_path / "m"))  # fmt: skip
+    assert res.exit_code == 0, text
+    # 300 uniform samples span ~592 x 593 m of the 100 km^2 map: 0.35 %
+    assert "warning: the samples' bounding box covers 0.35 % of the map" in text
+    assert text.index("bounding box covers") < text.index("glacimap reconstruct — seed 0")
+    res, text = _invoke("reconstruct", str(samples_csv), "--crs", CRS, "--resolution", "50",
+                        "--out", str(tmp_path / "n"))  # fmt: skip
+    assert res.exit_code == 0 and "bounding box covers" not in text

@@ -152,6 +152,9 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
     else:
         data = table.samples
         grid = map_grid(bounds, resolution, data.crs, data)
+    footprint = _footprint_note(data, grid)
+    if footprint:  # said before the fit: a big map of few samples is long to wait for
+        console.print(f"[yellow]warning:[/] {footprint}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):
@@ -226,6 +229,30 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
     console.print("wrote " + ", ".join(written))
     if removed:  # a run with --checkpoints before: its report.html described another map
         console.print(f"removed {', '.join(removed)} of an earlier run into {out_dir}")
+
+
+#: Below this share of the map inside the samples' bounding box, reconstruct warns up front.
+MIN_SAMPLED_SHARE = 0.1
+
+
+def _footprint_note(data, grid) -> str:
+    """A warning when the samples' bounding box covers under :data:`MIN_SAMPLED_SHARE` of the
+    map (``--bounds`` / ``--like`` far larger than the survey): a 10 km square at 4 m around
+    a 600 m survey ran for minutes with no word (6.25 million cells, mostly prior)."""
+    w, s, e, n = grid.bounds
+    x0, y0 = np.maximum(data.xy.min(axis=0), (w, s))
+    x1, y1 = np.minimum(data.xy.max(axis=0), (e, n))
+    inside = max(x1 - x0, 0.0) * max(y1 - y0, 0.0)
+    area = (e - w) * (n - s)
+    share = inside / area if area > 0 else 1.0
+    if share >= MIN_SAMPLED_SHARE:
+        return ""
+    return (
+        f"the samples' bounding box covers {100 * share:.2g} % of the map ({inside / 1e6:.3g} "
+        f"of {area / 1e6:.3g} km^2, {grid.ny * grid.nx:,} cells): the rest is the prior mean "
+        "with the prior's 1-sigma, and the map, its mesh and contours take long to make; "
+        "narrow --bounds (or --like) to the survey"
+    )
 
 
 def _reverted_fraction(rec) -> float:
