@@ -159,6 +159,13 @@ def test_prior_dem_is_labelled_by_file_name(tmp_path):
     assert repr(mean).startswith("RasterMean('prior.tif'")
     assert str(tmp_path) not in repr(mean)
     assert mean.source.path == str(path)  # still read from where it is
+    # a RasterMean the caller built: a relabelled copy, the caller's object untouched
+    from terrain import RasterMean
+
+    own = RasterMean(path)
+    used = prior_mean(own, load_scenario(None))
+    assert used is not own and repr(used).startswith("RasterMean('prior.tif'")
+    assert str(path) in repr(own)
 
 
 # --- product.nc with CF standard names -------------------------------------------------------

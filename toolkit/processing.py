@@ -15,6 +15,7 @@ import os
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
+from copy import copy
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -144,8 +145,8 @@ def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
     name (its ``repr`` and the products' ``mean_function``), not its absolute path."""
     if prior is None:
         return "constant"
-    if isinstance(prior, RasterMean):
-        return prior
+    if isinstance(prior, RasterMean):  # a copy: the caller's object keeps its label
+        return _named_by_file(copy(prior))
     if isinstance(prior, str | os.PathLike) and not Path(prior).is_file():
         raise bad_input(
             "--prior",
@@ -156,9 +157,14 @@ def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
     cfg = settings.get("prior", {})
     cells = tuple(int(c) for c in cfg.get("cells", [])) or None
     mean = RasterMean(prior, resampling=cfg.get("resampling", "bilinear"), cells=cells)
-    if mean.source.path is not None:  # provenance names the file, not where it was read:
-        # the products' bytes must not depend on the folder (toolkit.provenance); the file's
-        # SHA-256 is in the product's ``inputs`` attribute
+    return _named_by_file(mean)
+
+
+def _named_by_file(mean: RasterMean) -> RasterMean:
+    """Label a file-backed RasterMean by its file name: provenance names the file, not where
+    it was read, so the products' bytes do not depend on the folder (toolkit.provenance);
+    the file's SHA-256 is in the product's ``inputs`` attribute."""
+    if mean.source.path is not None:
         mean.source = replace(mean.source, label=Path(mean.source.path).name)
     return mean
 
