@@ -57,8 +57,9 @@ def field():
 def test_stationary_data_give_the_stationary_gp(field):
     xy, f, noise, kw, q = field
     samples = ElevationSamples(xy, f + noise, 0.01)
-    plain = TerrainGP(**kw).fit(samples)
-    local = TerrainGP(local_amplitude=True, **kw).fit(samples)
+    plain = TerrainGP(local_amplitude=False, **kw).fit(samples)
+    local = TerrainGP(**kw).fit(samples)  # "auto": on, since the fit is tiled
+    assert local.local_amplitude_ and not plain.local_amplitude_
     m1, s1 = plain.predict(q, return_std=True)
     m2, s2 = local.predict(q, return_std=True)
     lo, median, hi = local.tile_stats_["amplitudes"]
@@ -79,7 +80,9 @@ def test_wrong_global_variance_is_corrected_locally(field):
     xy, f, noise, kw, q = field
     samples = ElevationSamples(xy, 3.0 * f + noise, 0.01)
     local = TerrainGP(local_amplitude=True, **kw).fit(samples)
-    right = TerrainGP(**{**kw, "kernel": SquaredExponential(9.0, 10.0)}).fit(samples)
+    right = TerrainGP(local_amplitude=False, **{**kw, "kernel": SquaredExponential(9.0, 10.0)}).fit(
+        samples
+    )
     _, s_local = local.predict(q, return_std=True)
     _, s_right = right.predict(q, return_std=True)
     _, median, _ = local.tile_stats_["amplitudes"]
@@ -99,6 +102,14 @@ def test_settings_and_method_choice(field):
     assert TerrainGP(**kw).fit(samples).method_ == "exact"
     gp = TerrainGP(local_amplitude=True, **kw).fit(samples)
     assert gp.method_ == "tiled" and "local amplitude" in gp.provenance()["method"]
+    # "auto" (the default) follows the route: off on the exact GP, on when the fit tiles
+    small = TerrainGP(**kw).fit(samples)
+    assert small.method_ == "exact" and not small.local_amplitude_
+    big = TerrainGP(exact_max_samples=100, **kw).fit(samples)
+    assert big.method_ == "tiled" and big.local_amplitude_
+    assert "local amplitude" in big.provenance()["method"]
+    with pytest.raises(InputError, match="local_amplitude"):
+        TerrainGP(local_amplitude="sometimes", **kw).fit(samples)
 
 
 def test_deterministic_and_dask_blocks_join(field):
