@@ -182,3 +182,17 @@ def test_dominant_bias_is_flagged_in_json_cli_and_html(site, tmp_path):
         product, {"x": xy[:, 0], "y": xy[:, 1], "z": z + 0.32 * np.tile([1.0, -1.0], 20)}, crs=CRS
     )
     assert unbiased["warnings"] == [] and not unbiased["accuracy"]["bias_assessment"]["dominant"]
+
+
+def test_truth_metrics_use_the_certificate_sign():
+    """A map 0.5 m above the truth with sigma 0.25 m: mean error +0.5 m and z mean +2 (hand
+    computation), the sign of the checkpoint block's bias (DEM - checkpoint) and of
+    calibration.z_mean; terrain.evaluate standardizes truth - map and would say -2."""
+    from terrain import evaluate
+    from toolkit.pipeline import _against_truth
+
+    truth = np.linspace(100.0, 110.0, 50).reshape(5, 10)
+    row = _against_truth(truth + 0.5, np.full(truth.shape, 0.25), truth)
+    assert row["mean_error"] == pytest.approx(0.5) and row["z_mean"] == pytest.approx(2.0)
+    assert evaluate(truth + 0.5, truth, np.full(truth.shape, 0.25))["z_mean"] == pytest.approx(-2)
+    assert "z_mean" not in _against_truth(truth + 0.5, None, truth)  # no sigma: no z

@@ -132,3 +132,24 @@ def test_print_default_redirected_to_a_file_is_the_scenario_byte_for_byte(tmp_pa
     assert max(len(line) for line in DEFAULT_TOML.splitlines()) > 80  # would have wrapped
     assert text == DEFAULT_TOML
     assert load_scenario(target) == load_scenario(None) == DEFAULT_SCENARIO
+
+
+def test_interrupt_while_writing_the_field_files_leaves_none(tmp_path, monkeypatch):
+    """Ctrl-C while ``run`` writes the simulated field folder (measured: a SIGINT landing
+    there under load left gps.nmea, odometry.csv, tilt.csv and checkpoints.csv behind)."""
+    import toolkit.pipeline as pipeline
+
+    real = pipeline.write_field_survey
+
+    written = []
+
+    def interrupted(scenario, truth, log, folder, **kw):
+        real(scenario, truth, log, folder, **kw)  # every file written, then Ctrl-C
+        written.extend(p.name for p in Path(folder).rglob("*.nmea"))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline, "write_field_survey", interrupted)
+    small = {"plan": {"n_swaths": 1}}
+    with pytest.raises(KeyboardInterrupt):
+        pipeline.run_scenario(out=tmp_path / "o", overrides=small)
+    assert written == ["gps.nmea"] and _products(tmp_path / "o") == []

@@ -139,17 +139,23 @@ def truth_metrics(truth, res_process, scenario: dict[str, Any]) -> dict[str, dic
             seed=int(scenario["seed"]),
         ).fit(rec.samples)
         maps["gp_constant"] = gp.predict_grid(grid)
-    out = {}
-    for name, ds in maps.items():
-        std = ds["elevation_std"].values if "elevation_std" in ds else None
-        out[name] = evaluate(ds["elevation"].values, truth_on_grid, std)
     rel = rec.product["elevation_std_relative"].values
-    out["gp_satellite_relative_sigma"] = evaluate(
-        rec.product["elevation"].values - float(_offset_error(rec, truth_on_grid)),
-        truth_on_grid,
-        rel,
-    )
-    return out
+    shifted = rec.product["elevation"].values - float(_offset_error(rec, truth_on_grid))
+    rows = {name: (ds["elevation"].values, ds.get("elevation_std")) for name, ds in maps.items()}
+    rows["gp_satellite_relative_sigma"] = (shifted, rel)
+    return {name: _against_truth(z, std, truth_on_grid) for name, (z, std) in rows.items()}
+
+
+def _against_truth(z, std, truth_on_grid) -> dict[str, float]:
+    """:func:`terrain.evaluate` in the certificate's sign: errors are map - truth (ASPRS:
+    DEM - reference), so ``mean_error`` and ``z_mean`` read as the checkpoint block's bias
+    and ``calibration.z_mean`` (terrain.metrics standardizes truth - map)."""
+    std = None if std is None else np.asarray(std)
+    row = evaluate(z, truth_on_grid, std)
+    row["mean_error"] = float(np.nanmean(z - truth_on_grid))
+    if "z_mean" in row:
+        row["z_mean"] = -row["z_mean"]
+    return row
 
 
 def _offset_error(rec, truth_on_grid) -> float:
@@ -209,9 +215,9 @@ def run_scenario(
         return write_field_survey(scenario, truth, log, out / "field", plan=plan)
 
     fresh = not (out / "field").exists()
-    survey = timed("simulate", _simulate)
-    true_path = survey.log.truth["xyz"] + np.r_[survey.log.origin, 0.0]
-    try:
+    try:  # a failed or interrupted run leaves no half set of files, Ctrl-C included
+        survey = timed("simulate", _simulate)  # interrupted while writing the field files too
+        true_path = survey.log.truth["xyz"] + np.r_[survey.log.origin, 0.0]
         pres = process(
             survey.rover,
             prior=survey.prior,
@@ -225,7 +231,7 @@ def run_scenario(
             truth=truth,
             truth_path=true_path,
         )
-    except BaseException:  # Ctrl-C included: a failed run leaves no half set of files
+    except BaseException:
         if fresh:
             shutil.rmtree(out / "field", ignore_errors=True)
         raise
