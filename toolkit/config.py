@@ -71,7 +71,7 @@ variance = "slope"             # sample variance: "slope" (var(z - grad z.[x,y])
 [reconstruct]
 resolution_m = 2.0             # output grid cell (m)
 method = "auto"                # TerrainGP method: auto | exact | tiled
-max_fit_samples = 1000
+max_fit_samples = 2000         # hyperparameters on <= this many samples: TerrainGP's default
 n_restarts = 1
 compare_constant_mean = false  # simulation: also fit a constant-mean GP, scored on the truth
 
