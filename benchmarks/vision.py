@@ -18,6 +18,10 @@ Cases
     of every observation against its track's surface point (the renderer's ray cast under the
     track's last, nearest view: :func:`factorgraph.vision.track_truth`; median, p95, share
     > 4 px), and ms per frame (render; front-end).
+``render``
+    The renderer alone on the ``frontend`` traverse: CPU and wall ms per 640 x 480 frame,
+    each scene twice (the second pass is the steady state), share of pixels taken from a
+    triangle's plane, sha256 of the frames. ``OMP_NUM_THREADS=1 taskset -c 1`` for one core.
 ``headings``
     Front-end yield heading east, north, south and west (20 keyframes 2 m apart from the
     site centre, sunny snow, SIFT) with ``max_features`` 2000 and 4000.
@@ -125,6 +129,50 @@ def case_frontend(n_keyframes: int, seed: int) -> dict[str, Any]:
                 rows.append(row)
                 print(name, det, clahe, {k: row[k] for k in list(row)[4:13]}, flush=True)
     return {"rows": rows, "keyframes": len(log.t), "seed": seed}
+
+
+def case_render(n_keyframes: int, seed: int) -> dict[str, Any]:
+    """CPU time per frame of the renderer alone on the ``frontend`` traverse, each scene twice
+    (the first pass warms the process up; the first frame of every pass, which builds the
+    BVH, is left out), the sha256 of the frames and the share of pixels whose distance came
+    from a triangle's plane (``Renderer.cast_counts``). Pin one core for the "one core"
+    figure: ``OMP_NUM_THREADS=1 taskset -c 1 python benchmarks/vision.py --cases render``."""
+    import hashlib
+
+    import cv2
+
+    from factorgraph import SensorSuite, simulate_traverse
+    from factorgraph.vision import SCENES, render_frames, vision_sensors
+    from terrain.synthetic import default_site
+
+    cv2.setNumThreads(1)
+    dem = default_site(2.0)
+    x, y = dem.x.values, dem.y.values
+    wp = np.array([[x[40], y[150]], [x[40] + 2.0 * n_keyframes, y[150] + 4.0]])
+    sensors = vision_sensors(SensorSuite(keyframe_dt_s=2.0))
+    log = simulate_traverse(dem, wp, sensors, seed=seed)
+    rows = []
+    for name in [n for n in SCENE_NAMES for _ in (0, 1)]:
+        ren, it = render_frames(log, dem, SCENES[name], seed=seed)
+        h, cpu, wall = hashlib.sha256(), 0.0, 0.0
+        for k, img in it:
+            h.update(img.tobytes())
+            if k == 0:
+                c0, w0 = time.process_time(), time.perf_counter()
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+        n = log.n_keyframes - 1
+        cc = ren.cast_counts
+        rows.append(
+            {
+                "scene": name,
+                "cpu_ms": 1e3 * cpu / n,
+                "wall_ms": 1e3 * wall / n,
+                "plane_share": cc["plane"] / (cc["plane"] + cc["cast"]),
+                "sha256": h.hexdigest()[:16],
+            }
+        )
+        print(rows[-1], flush=True)
+    return {"rows": rows, "keyframes": log.n_keyframes, "seed": seed}
 
 
 def case_headings(n_keyframes: int, seed: int) -> dict[str, Any]:
@@ -607,6 +655,15 @@ def main() -> None:
             fracs = tuple(args.wrong_fracs) if args.wrong_in_gate else ()
             res = in_subprocess(case_gate, float(case[4:]), fracs)
             cols = CHAIN_COLS
+        elif case == "render":
+            res = in_subprocess(case_render, args.keyframes, args.seed)
+            cols = [
+                ("scene", "scene", ""),
+                ("cpu_ms", "cpu ms", ".1f"),
+                ("wall_ms", "wall ms", ".1f"),
+                ("plane_share", "plane", ".2f"),
+                ("sha256", "sha256", ""),
+            ]
         elif case == "headings":
             res = in_subprocess(case_headings, 20, args.seed)
             cols = [
