@@ -10,6 +10,7 @@ import json
 
 import numpy as np
 import pytest
+from _scenarios import small_run
 
 from factorgraph import localize, read_field_log, write_field_log
 from factorgraph.control_sim import path_corners, simulate_control
@@ -127,26 +128,10 @@ def test_localize_uses_stops_read_from_the_folder(stopped, tmp_path):
 
 #: a small seeded run (tests/test_run_products.py: a 300 m corner of the default site, two
 #: swaths, a 5 m grid) with 4 control points at the path's corners
-SMALL_RUN = """
-seed = 0
-[site]
-bounds = [526000.0, 6475000.0, 526300.0, 6475300.0]
-[plan]
-n_swaths = 2
-[reconstruct]
-resolution_m = 5.0
-max_fit_samples = 300
-n_restarts = 0
-[certify]
-n_checkpoints = 100
-n_boot = 200
-heldout_folds = 0
-[export]
-mesh = false
-[control]
-n_targets = 4
-mode = "{mode}"
-"""
+SMALL_RUN = small_run(
+    n_boot=200,
+    extra='heldout_folds = 0\n[export]\nmesh = false\n[control]\nn_targets = 4\nmode = "{mode}"\n',
+)
 
 
 @pytest.mark.slow

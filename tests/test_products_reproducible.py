@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
+from _scenarios import small_run
 from typer.testing import CliRunner
 
 from terrain import Grid, InputError, random_terrain
@@ -233,20 +234,7 @@ def test_process_result_repr_is_one_readable_line():
 
 # --- two runs, two folders, the same bytes ---------------------------------------------------
 
-SCENARIO = """
-seed = 0
-[site]
-bounds = [526000.0, 6475000.0, 526300.0, 6475300.0]
-[plan]
-n_swaths = 2
-[reconstruct]
-resolution_m = 5.0
-max_fit_samples = 300
-n_restarts = 0
-[certify]
-n_checkpoints = 100
-n_boot = 500
-"""
+SCENARIO = small_run(n_boot=500)
 
 
 @pytest.mark.slow

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import shapely
 import xarray as xr
+from _scenarios import SMALL_BOUNDS, small_run
 from test_export import _gdal_py, needs_gdal
 from test_report import _parse
 from typer.testing import CliRunner
@@ -26,21 +27,8 @@ from terrain.sampling import sample_dem
 from toolkit.cli import app
 
 runner = CliRunner()
-BOUNDS = (526000.0, 6475000.0, 526300.0, 6475300.0)
-SCENARIO = f"""
-seed = 0
-[site]
-bounds = {list(BOUNDS)}
-[plan]
-n_swaths = 2
-[reconstruct]
-resolution_m = 5.0
-max_fit_samples = 300
-n_restarts = 0
-[certify]
-n_checkpoints = 100
-n_boot = 500
-"""
+BOUNDS = SMALL_BOUNDS
+SCENARIO = small_run(n_boot=500)
 PRODUCTS = {
     "certificate.json",
     "contours.geojson",
