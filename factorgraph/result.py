@@ -158,10 +158,22 @@ class LocalizationResult:
         return np.where(n > 0, total / np.maximum(n, 1), np.nan)
 
     def true_landmarks(self) -> np.ndarray:
-        """True positions (L, 3) of the landmarks, from the log's truth (simulation only)."""
+        """True positions (L, 3) of the landmarks, from the log's truth (simulation only).
+
+        A landmark the truth does not hold gets a NaN row: an image track whose reference ray
+        met the sky has no ground point (:func:`factorgraph.vision.chain.attach_tracks` drops
+        it). Matching by id, not by position: a missing id took the next landmark's truth,
+        or failed past the last one (bei's 240 m window: ``IndexError``).
+        """
         tr = self.log.truth
-        pos = np.searchsorted(tr["landmark_id"], self.landmark_id)
-        return tr["landmark_xyz"][pos]
+        ids = np.asarray(tr["landmark_id"])
+        order = np.argsort(ids, kind="stable")
+        pos = np.clip(np.searchsorted(ids[order], self.landmark_id), 0, max(ids.size - 1, 0))
+        out = np.full((self.landmark_id.size, 3), np.nan)
+        if ids.size:
+            hit = ids[order][pos] == self.landmark_id
+            out[hit] = np.asarray(tr["landmark_xyz"], float)[order[pos[hit]]]
+        return out
 
     def to_projected(self, xyz: np.ndarray) -> np.ndarray:
         """Local ENU (n, 3) -> projected easting, northing, elevation (n, 3) in ``log.crs``."""

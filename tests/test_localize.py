@@ -242,3 +242,19 @@ def test_grazing_views_on_flat_snow_are_deferred_not_rebuilt(dem):
     assert proj >= 0.99 * np.isin(log.obs_id, res.landmark_id).sum()
     d = res.keyframe_xyz[:, :2] - log.truth["xyz"][:, :2]
     assert np.sqrt(np.mean(np.sum(d**2, axis=1))) < 1.5  # measured 0.38 m
+
+
+def test_true_landmarks_match_by_id_and_leave_unknown_ones_nan():
+    """Image tracks whose reference ray met the sky have no truth row (attach_tracks drops
+    them). The truth is matched by id: before, a missing id took its neighbour's position
+    and one past the last raised IndexError (bei's 240 m window, vision_dem)."""
+    from types import SimpleNamespace
+
+    from factorgraph.result import LocalizationResult
+
+    truth = {"landmark_id": np.array([0, 1, 3, 4]), "landmark_xyz": np.arange(12.0).reshape(4, 3)}
+    res = SimpleNamespace(log=SimpleNamespace(truth=truth), landmark_id=np.array([1, 2, 4, 5]))
+    got = LocalizationResult.true_landmarks(res)
+    np.testing.assert_array_equal(got[0], [3.0, 4.0, 5.0])  # id 1: the second truth row
+    np.testing.assert_array_equal(got[2], [9.0, 10.0, 11.0])  # id 4: the last
+    assert np.isnan(got[1]).all() and np.isnan(got[3]).all()  # ids 2 and 5: no truth

@@ -342,6 +342,9 @@ def localization_summary(loc: LocalizationResult, sel: LandmarkSelection) -> dic
         out["control"] = loc.control  # which ground control was used, and its residuals
     if "landmark_xyz" in log.truth and loc.n_landmarks:
         e = loc.landmark_xyz - loc.true_landmarks()
-        nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])
-        out["landmark_nees_mean"] = float(nees.mean())
+        known = np.isfinite(e).all(axis=1)  # image tracks whose ray met the sky: no truth
+        e, cov = e[known], loc.landmark_cov[known]
+        nees = np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0])
+        out["landmark_nees_mean"] = float(nees.mean()) if nees.size else None
+        out["landmarks_without_truth"] = int((~known).sum())
     return out
