@@ -236,12 +236,15 @@ def _chain_row(name, log, truth, scenario, wrong_rows=None) -> dict[str, Any]:
     sel = select_samples(loc, scenario)
     s = localization_summary(loc, sel)
     e = loc.landmark_xyz - loc.true_landmarks()
-    nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])
+    known = np.isfinite(e).all(axis=1)  # tracks whose reference ray met the sky: no truth
+    e = e[known]
+    cov, cov_rel = loc.landmark_cov[known], loc.landmark_cov_relative[known]
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0])
     # decomposition (docs/vision.md, "Landmark NEES"): the shared offset (the mean keyframe
     # error, one 3-dof draw per run) and the relative part, each against its covariance
     delta = (loc.keyframe_xyz - log.truth["xyz"]).mean(0)
     er = e - delta
-    rel = np.linalg.solve(loc.landmark_cov_relative, er[..., None])[..., 0]
+    rel = np.linalg.solve(cov_rel, er[..., None])[..., 0]
     in_graph = set(loc.landmark_id.tolist())
     per_k = np.bincount(log.obs_k[np.isin(log.obs_id, list(in_graph))], minlength=log.n_keyframes)
     row = {
@@ -253,6 +256,7 @@ def _chain_row(name, log, truth, scenario, wrong_rows=None) -> dict[str, Any]:
         "graph_landmarks_per_keyframe_p10": float(np.percentile(per_k, 10)),
         "landmark_nees": float(nees.mean()),
         "landmark_in_2sigma": float(np.mean(nees < chi2.ppf(0.9545, 3))),
+        "landmarks_without_truth": int((~known).sum()),
         "shared_offset_chi2": float(delta @ np.linalg.solve(loc.shared_offset_cov, delta)),
         "relative_nees": float(np.einsum("ni,ni->n", er, rel).mean()),
         "retry_recovered": int(loc.refine.get("retry_recovered", 0)),
@@ -535,7 +539,9 @@ def case_scale(density: float, seed: int, swaths: int = 4) -> dict[str, Any]:
     sel_s = time.perf_counter() - t1
     peaks = rss.stop()
     e = loc.landmark_xyz - loc.true_landmarks()
-    nees = np.einsum("ni,ni->n", e, np.linalg.solve(loc.landmark_cov, e[..., None])[..., 0])
+    known = np.isfinite(e).all(axis=1)  # ideal tracks: every landmark has its truth
+    e, cov = e[known], loc.landmark_cov[known]
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0])
     ids, counts = np.unique(log.obs_id, return_counts=True)
     step = np.asarray(loc.step_s)
     row = {
@@ -550,6 +556,7 @@ def case_scale(density: float, seed: int, swaths: int = 4) -> dict[str, Any]:
         "never_initialised": dict(loc.dropped),
         "landmark_nees": float(nees.mean()),
         "landmark_in_2sigma": float(np.mean(nees < chi2.ppf(0.9545, 3))),
+        "landmarks_without_truth": int((~known).sum()),
         "simulate_s": sim_s,
         "localize_s": loc_s,
         "localize_cpu_s": loc_cpu_s,  # CPU time of the process (all threads): load-independent

@@ -47,7 +47,7 @@ for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
 
 from _harness import in_subprocess, table, write_json  # noqa: E402
 
-DEMS = ("olinda", "rm", "prism", "lux", "glacier", "jacksboro", "topobathy")
+DEMS = ("olinda", "rm", "prism", "lux", "glacier", "jacksboro", "topobathy", "bei", "volcano")
 NODATA = -9999.0
 
 
