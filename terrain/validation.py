@@ -155,15 +155,28 @@ def json_safe(obj: Any) -> Any:
     return obj
 
 
+#: Above this share of noise in the held-out residual variance (``noise_share``) the
+#: map-level coverage is a weak estimate (terrain/heldout_design.py): a few per cent error
+#: in the stated noise moves it by points, which its bootstrap interval does not carry.
+NOISE_SHARE_WEAK = 0.9
+
+
 def coverage_verdict(pooled: dict[str, Any], tolerance_points: float = 5.0) -> list[str]:
     """Sentences for the held-out 68 % / 95 % coverages (fractions in ``pooled``) that are off
     nominal by more than ``tolerance_points`` percentage points; empty list when both are in.
 
     The map-level coverages (``map_coverage_68`` / ``_95``, the samples' noise removed) are
     judged where present, and only when their 95 % block-bootstrap interval excludes the
-    nominal level; the coverages of held-out measurements otherwise.
+    nominal level; the coverages of held-out measurements otherwise. Where the held-out
+    residuals are mostly the samples' own noise (``noise_share`` above
+    :data:`NOISE_SHARE_WEAK`) a map-level miss is reported as a weak estimate, not as a
+    verdict on the 1-sigma: on nine real DEMs at 50,000 samples (noise share 0.91-0.98) it
+    read 5.6 points low at 68 % on two sites whose truth coverage was 70.0 and 75.4 %
+    (docs/terrain.md "Held-out check when noise dominates").
     """
     tol = positive_number("tolerance_points", tolerance_points, "e.g. 5 (percentage points)")
+    share = pooled.get("noise_share")
+    weak = share is not None and math.isfinite(share) and share > NOISE_SHARE_WEAK
     out = []
     for label, nominal, _ in NOMINAL:
         observed = pooled.get("map_coverage_" + label[:2])
@@ -178,6 +191,14 @@ def coverage_verdict(pooled: dict[str, Any], tolerance_points: float = 5.0) -> l
         by_chance = interval is not None and interval[0] <= nominal <= interval[1]
         if abs(diff) > tol and not by_chance:
             side, sigma = ("below", "too small") if diff < 0 else ("above", "too large")
+            if weak and interval is not None:  # a map-level estimate, mostly noise
+                out.append(
+                    f"held-out {label} {what} {100 * observed:.1f} % is {abs(diff):.1f} points "
+                    f"{side} nominal, but {100 * share:.0f} % of the held-out residual "
+                    "variance is the samples' own noise: too weak an estimate to say the "
+                    f"map's 1-sigma is {sigma} (checkpoints can)"
+                )
+                continue
             out.append(
                 f"held-out {label} {what} {100 * observed:.1f} % is {abs(diff):.1f} points "
                 f"{side} nominal: the map's 1-sigma is {sigma}"

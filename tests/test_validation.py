@@ -268,3 +268,26 @@ def test_bad_input(draw, lattice):
         cross_validate(object(), lattice)
     with pytest.raises(ValueError, match="tolerance_points"):  # InputError is a ValueError
         cross_validate(gp, lattice, block_size=20.0).verdict(tolerance_points=0)
+
+
+def test_a_noise_dominated_miss_is_called_weak_not_a_verdict():
+    """noise_share above 0.9: a map-level miss is stated as too weak an estimate to judge
+    the 1-sigma (glacier and volcano at 50k read 62.7 % at 68 with truth 75.4 and 70.0 %)."""
+    from terrain.validation import NOISE_SHARE_WEAK, coverage_verdict
+
+    pooled = {
+        "map_coverage_68": 0.627,
+        "map_coverage_68_interval": [0.554, 0.680],  # excludes the nominal 68.3 %
+        "map_coverage_95": 0.95,
+        "map_coverage_95_interval": [0.94, 0.96],
+    }
+    strong = coverage_verdict({**pooled, "noise_share": 0.80})
+    assert strong == [
+        "held-out 68 % map coverage (held-out, noise removed) 62.7 % is 5.6 points below "
+        "nominal: the map's 1-sigma is too small"
+    ]
+    (weak,) = coverage_verdict({**pooled, "noise_share": 0.96})
+    assert NOISE_SHARE_WEAK == 0.9 and "96 % of the held-out residual" in weak
+    assert "too weak an estimate" in weak and not weak.endswith("is too small")
+    far_off = {**pooled, "map_coverage_68": 0.40, "noise_share": 0.96}  # still a sentence
+    assert len(coverage_verdict(far_off)) == 1
