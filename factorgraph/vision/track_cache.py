@@ -134,8 +134,7 @@ def load_tracks(
     ):
         return None, "inputs differ"
     source = f"reused {path} (inputs sha256 {meta['digest'][:12]})"
-    tracks = FeatureTracks(
-        k.astype(int), lid.astype(int), uv.astype(float), Counter(meta["counts"]),
-        meta["per_frame"], params, source=source,
-    )  # fmt: skip
+    counts = Counter(meta["counts"])
+    ids, per_frame = lid.astype(int), meta["per_frame"]
+    tracks = FeatureTracks(k.astype(int), ids, uv.astype(float), counts, per_frame, params, source)
     return tracks, "reused"
