@@ -63,6 +63,9 @@ def test_localize_tracks_the_images_and_keeps_the_truth(chain):
     summary = json.loads((root / "loc" / "localize_summary.json").read_text())
     assert summary["selection_counts"]["in_graph"] > 0
     assert 0 < summary["landmark_nees_mean"] < 20  # truth matched the re-tracked landmarks
+    # the tracks simulate stored beside the frames were reused, and the summary says so
+    assert summary["front_end"]["source"].startswith("reused")
+    assert summary["front_end"]["tracks"] > 0 and "(reused" in " ".join(chain["localize"].split())
 
 
 @pytest.mark.slow  # renders and tracks 16 frames, localizes 3 times: ~100 s here
@@ -74,8 +77,11 @@ def test_localize_survives_missing_and_broken_frames(chain, tmp_path):
     (log_dir / "images" / "frame_000005.png").unlink()
     (log_dir / "images" / "frame_000010.png").write_bytes(b"\x89PNG broken")
     res = _ok(["localize", log_dir, "--out", tmp_path / "loc"])
-    assert "missing_file" in res.output and "unreadable" in res.output
-    assert "landmark truth not used" in res.output  # the tracks changed
+    out = " ".join(res.output.split())  # the console wraps long lines
+    assert "missing_file" in out and "unreadable" in out
+    assert "landmark truth not used" in out  # the tracks changed
+    summary = json.loads((tmp_path / "loc" / "localize_summary.json").read_text())
+    assert summary["front_end"]["source"].startswith("tracked")  # frames differ: re-tracked
 
 
 def test_bad_camera_option_is_an_input_error(tmp_path):

@@ -128,8 +128,10 @@ def _print_counts(summary: dict[str, Any], files: list[Path]) -> None:
 
 
 def _track_images(log, folder: Path):
-    """``log`` with its observations from the front-end run on ``folder``'s frames; landmark
-    truth kept only when the tracks are those the log already holds (same ids)."""
+    """``log`` with its observations from the front-end run on ``folder``'s frames (landmark
+    truth kept only when the tracks are those the log already holds, same ids), and what the
+    front-end did for ``localize_summary.json``: whether it reused the tracks stored beside
+    the frames or tracked afresh, and why (``FeatureTracks.source``), with its counts."""
     import numpy as np
 
     from factorgraph.vision import attach_tracks, read_frames, track_features
@@ -149,12 +151,19 @@ def _track_images(log, folder: Path):
         truth_xyz[log.truth["landmark_id"]] = log.truth["landmark_xyz"]
     skipped = {k: v for k, v in frames.skipped.items() if v}
     console.print(
-        f"front-end on {folder}: {tr.n_tracks} tracks, {len(tr.k) / log.n_keyframes:.1f} "
+        f"front-end on {folder} ({tr.source}): {tr.n_tracks} tracks, "
+        f"{len(tr.k) / log.n_keyframes:.1f} "
         f"views per keyframe; frames skipped: {skipped or 'none'}; rejected: "
         + ", ".join(f"{k} {v}" for k, v in sorted(tr.counts.items()))
         + ("" if same else "; tracks differ from the log's table: landmark truth not used")
     )
-    return attach_tracks(log, tr, truth_xyz)
+    front_end = {
+        "source": tr.source,
+        "tracks": int(tr.n_tracks),
+        "frames_skipped": skipped,
+        "rejected": {k: int(v) for k, v in tr.counts.items()},
+    }
+    return attach_tracks(log, tr, truth_xyz), front_end
 
 
 def localize_command(
@@ -232,9 +241,9 @@ def localize_command(
     ):
         if not (math.isfinite(sel_cfg[key]) and sel_cfg[key] >= 0):
             raise bad_input(opt, sel_cfg[key], "a finite distance >= 0 (m)", "e.g. 0.5 / 5")
-    log = read_log_folder(log_dir)
+    log, front_end = read_log_folder(log_dir), None
     if images and (log_dir / "images").is_dir():
-        log = _track_images(log, log_dir / "images")
+        log, front_end = _track_images(log, log_dir / "images")
     out_dir = ensure_writable_dir(out)
     with Progress(
         "[progress.description]{task.description}",
@@ -260,6 +269,8 @@ def localize_command(
             "settings": {"localize": scenario["localize"], "select": sel.settings},
             **summary,
         }
+        if front_end is not None:  # the camera front-end ran on the log's images/
+            record["front_end"] = front_end
         with atomic_path(tmp / names["summary"]) as path:
             path.write_text(json.dumps(record, indent=2))
     _print_counts(summary, [out_dir / n for n in names.values()])
