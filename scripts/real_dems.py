@@ -124,8 +124,8 @@ def fetch(cache: Path | None = None) -> Path:
             for name, rel in files.items():
                 src = Path(tmp) / "x" / rel
                 pairs = [(src, FILES[name])]
-                if rel.endswith(".rdb"):  # the index travels with the database
-                    pairs.append((src.with_suffix(".rdx"), FILES[name][:-4] + ".rdx"))
+                if rel.endswith(".rdb"):  # the index first: a cached .rdb implies its .rdx
+                    pairs.insert(0, (src.with_suffix(".rdx"), FILES[name][:-4] + ".rdx"))
                 for one, cached in pairs:
                     part = cache / (cached + ".part")  # atomic: never a half-copied file
                     shutil.copyfile(one, part)
