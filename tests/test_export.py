@@ -349,3 +349,26 @@ def test_cli_bad_interval_writes_nothing(product, tmp_path):
     res = CliRunner().invoke(_app(), [str(nc), "--out", str(out), "--interval", "0"])
     assert res.exit_code != 0 and "--interval" in str(res.exception)
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "cert, interval, said",
+    [
+        ({"contour_interval": {"certified_m": 5.0, "how": "ASPRS 1990"}}, 5.0, "certified"),
+        ({"contour_interval": {"certified_m": None, "uncertified_m": 2.0}}, 2.0, "not certified"),
+        (None, 1.0, "no certificate.json"),  # nothing beside the product: 1 m, said so
+    ],
+)
+def test_cli_interval_defaults_to_the_certificates(product, tmp_path, cert, interval, said):
+    """Without --interval the contours follow the certificate beside the product (a 0.1 m
+    default would draw the map's noise as terrain); without one, 1 m and a sentence."""
+    nc = tmp_path / "product.nc"
+    product.to_netcdf(nc, engine="scipy")
+    if cert is not None:
+        (tmp_path / "certificate.json").write_text(json.dumps(cert))
+    res = CliRunner().invoke(_app(), [str(nc), "--out", str(tmp_path / "out"), "--no-mesh"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((tmp_path / "out" / FILES["summary"]).read_text())
+    assert summary["contours"]["interval"] == interval
+    assert said in summary["contour_interval_basis"]
+    assert said in " ".join(res.output.split())

@@ -45,12 +45,45 @@ def _open_product(path: Path):
         ) from exc
 
 
+def _interval(product: Path, given: float | None) -> tuple[float, str]:
+    """The contour interval (m) and where it comes from: ``--interval``, else the
+    ``contour_interval`` of the ``certificate.json`` beside ``product`` (``certified_m``, or
+    ``uncertified_m`` from the held-out RMSE and the shared offset), else 1 m, said to be
+    uncertified. Contours finer than the map's accuracy draw noise as terrain."""
+    if given is not None:
+        return float(given), f"{given:g} m as given (--interval)"
+    cert_path = product.parent / "certificate.json"
+    if cert_path.is_file():
+        try:
+            ci = json.loads(cert_path.read_text()).get("contour_interval") or {}
+        except (OSError, ValueError):
+            ci = {}
+        if ci.get("certified_m"):
+            return float(ci["certified_m"]), (
+                f"{ci['certified_m']:g} m, certified ({cert_path.name}: {ci.get('how', '')})"
+            )
+        if ci.get("uncertified_m"):
+            return float(ci["uncertified_m"]), (
+                f"{ci['uncertified_m']:g} m, from {cert_path.name} (not certified: no checkpoints)"
+            )
+    return 1.0, (
+        "1 m, not certified: no certificate.json with a contour interval beside PRODUCT "
+        "(pass --interval, or certify the map with glacimap certify)"
+    )
+
+
 def export_command(
     product: Annotated[
         Path, typer.Argument(help="Terrain product NetCDF (elevation, elevation_std, CRS).")
     ],
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/export"),
-    interval: Annotated[float, typer.Option(help="Contour interval, m.")] = 1.0,
+    interval: Annotated[
+        float | None,
+        typer.Option(
+            help="Contour interval, m. Default: the interval the certificate.json beside "
+            "PRODUCT states (certified, or uncertified from the held-out RMSE), else 1 m."
+        ),
+    ] = None,
     exaggeration: Annotated[
         float, typer.Option(help="Vertical exaggeration of the mesh render.")
     ] = 3.0,
@@ -64,6 +97,7 @@ def export_command(
     writes them and export_summary.json into --out."""
     from ..export import INDEX_EVERY, write_cog, write_contours, write_mesh
 
+    interval, basis = _interval(product, interval)
     if not (np.isfinite(interval) and interval > 0):
         raise bad_input("--interval", interval, "a positive contour interval in metres", "")
     if not (np.isfinite(exaggeration) and exaggeration > 0):
@@ -71,6 +105,7 @@ def export_command(
     ds = _open_product(product)
     out_dir = ensure_writable_dir(out)
     summary: dict = {"product": str(product), "seed": ds.attrs.get("seed")}
+    summary["contour_interval_basis"] = basis
     with console.status("writing the Cloud-Optimized GeoTIFF..."):
         summary["cog"] = str(write_cog(ds, out_dir / FILES["cog"]))
     with console.status("tracing contours..."):
@@ -108,4 +143,5 @@ def export_command(
             + ", ".join(m["paths"])
         )
     console.print(f"heights: {c['vertical_datum']}")
+    console.print(f"contour interval: {basis}")
     console.print(f"wrote {out_dir / FILES['summary']}")
