@@ -40,6 +40,20 @@ def as_crs(crs: Any, field_name: str = "crs") -> CRS:
     return out
 
 
+def utm_crs(lon_deg: float, lat_deg: float) -> CRS | None:
+    """The WGS 84 UTM zone (EPSG:326zz north, 327zz south) holding a point, by PROJ's
+    database; ``None`` outside UTM's latitudes (80 S - 84 N), where a polar stereographic
+    CRS (EPSG:3031, 3413) is the choice."""
+    from pyproj.aoi import AreaOfInterest
+    from pyproj.database import query_utm_crs_info
+
+    lon, lat = float(lon_deg), float(lat_deg)
+    if not (-80.0 <= lat <= 84.0 and -180.0 <= lon <= 180.0):
+        return None
+    info = query_utm_crs_info("WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat))
+    return CRS.from_epsg(int(info[0].code)) if info else None
+
+
 def check_same_crs(a: CRS | None, b: CRS | None, what_a: str, what_b: str) -> None:
     """Raise :class:`CRSMismatchError` unless ``a`` and ``b`` are the same CRS.
 

@@ -178,3 +178,20 @@ def test_lazyload_real_dems(name, shape, cell, lo, hi):
         assert dem.values[-1, -1] == 100.0 and dem.values[-1, 0] == 103.0
     site = real_dems.glacier_site(name)
     assert site.shape == (300, 300)
+
+
+@pytest.mark.parametrize(
+    "lon, lat, epsg",
+    [
+        (-134.5, 58.4, 32608),  # Juneau, the paper's site: UTM 8N
+        (-34.85, -8.0, 32725),  # Olinda: UTM 25S (the stars DEM's own CRS)
+        (6.1, 49.6, 32632),  # Luxembourg: UTM 32N
+        (0.0, 85.0, None),  # beyond 84 N: polar stereographic, no UTM zone
+        (0.0, -81.0, None),  # beyond 80 S
+    ],
+)
+def test_utm_crs_of_a_point(lon, lat, epsg):
+    from terrain.grid import utm_crs
+
+    got = utm_crs(lon, lat)
+    assert (got.to_epsg() if got is not None else None) == epsg

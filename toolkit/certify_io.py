@@ -27,6 +27,8 @@ from terrain import Grid
 from terrain.errors import bad_input
 from terrain.grid import check_same_crs, north_up
 
+from .provenance import file_sha256
+
 __all__ = [
     "COLUMN_ALIASES",
     "Checkpoints",
@@ -285,7 +287,7 @@ def read_checkpoints(path: str | os.PathLike, crs: Any = None) -> Checkpoints:
     path = Path(path)
     if not path.is_file():
         raise bad_input("CHECKPOINTS", str(path), "an existing CSV or Parquet file", "check it")
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    digest = file_sha256(path)
     return _from_columns(_table(path), path.name, crs, path, digest)
 
 
@@ -456,7 +458,7 @@ def read_dem(dem: Any) -> DemRaster:
     source = {
         "name": path.name,
         "path": str(path),  # as given: glacimap report finds the DEM again by it
-        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "sha256": file_sha256(path),
     }
     if suffix in (".tif", ".tiff"):
         return _from_geotiff(path, {"kind": "geotiff", **source})

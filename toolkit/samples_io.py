@@ -9,12 +9,11 @@ from typing import Any
 
 import numpy as np
 from pyproj import CRS, Transformer
-from pyproj.aoi import AreaOfInterest
-from pyproj.database import query_utm_crs_info
 
 from factorgraph.field.table import read_text_table
 from terrain import ElevationSamples
 from terrain.errors import bad_input
+from terrain.grid import utm_crs
 
 from .certify_io import read_checkpoints
 
@@ -29,16 +28,6 @@ class SampleTable:
 
     def __init__(self, samples: ElevationSamples, track: np.ndarray, shared: float, note: str):
         self.samples, self.track_z_std, self.shared_z_std, self.note = samples, track, shared, note
-
-
-def _utm_for(lon: np.ndarray, lat: np.ndarray) -> CRS:
-    info = query_utm_crs_info(
-        datum_name="WGS 84",
-        area_of_interest=AreaOfInterest(
-            float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max())
-        ),
-    )
-    return CRS.from_epsg(int(info[0].code))
 
 
 def _crs_hint(table: Any) -> str:
@@ -130,7 +119,15 @@ def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
     if not map_crs.is_geographic:
         _check_not_degrees(table, path)
     if map_crs.is_geographic:
-        map_crs = _utm_for(xy[:, 0], xy[:, 1])
+        lon, lat = np.median(xy, axis=0)  # the samples' median position
+        map_crs = utm_crs(lon, lat)
+        if map_crs is None:
+            raise bad_input(
+                "SAMPLES coordinates",
+                f"lon {lon:.3f}, lat {lat:.3f}",
+                "a site inside UTM's latitudes (80 S - 84 N) to be projected to its zone",
+                "project them to a polar stereographic CRS (EPSG:3031 / 3413) and pass --crs",
+            )
         tr = Transformer.from_crs(table.crs, map_crs, always_xy=True)
         xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
         note = f"geographic coordinates projected to {map_crs.to_string()} ({map_crs.name})"

@@ -48,7 +48,7 @@ import numpy as np
 from pyproj import CRS, Transformer
 
 from terrain.errors import InputError, bad_input
-from terrain.grid import Grid, as_crs
+from terrain.grid import Grid, as_crs, utm_crs
 from terrain.raster_mean import gdal_average
 
 __all__ = [
@@ -121,22 +121,19 @@ def _metric(crs: CRS) -> bool:
 
 def _utm_of_centre(src) -> CRS:
     """The WGS 84 UTM zone of the DEM's centre."""
-    from pyproj.aoi import AreaOfInterest
-    from pyproj.database import query_utm_crs_info
-
     w, s, e, n = src.bounds
     lon, lat = Transformer.from_crs(src.crs, "EPSG:4326", always_xy=True).transform(
         (w + e) / 2, (s + n) / 2
     )
-    info = query_utm_crs_info("WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat))
-    if not info or not (-80.0 <= lat <= 84.0):
+    crs = utm_crs(lon, lat)
+    if crs is None:
         raise bad_input(
             "site.crs",
             None,
             f"a projected CRS for a DEM centred at lon {lon:.3f}, lat {lat:.3f} (no UTM zone)",
             'set site.crs, e.g. "EPSG:3031" (Antarctic) or "EPSG:3413" (Arctic) stereographic',
         )
-    return CRS.from_epsg(int(info[0].code))
+    return crs
 
 
 def _valid_cells(values: np.ndarray, frac: float) -> tuple[int, int, int, int]:

@@ -225,10 +225,12 @@ def crs_area_warning(
 
 
 def utm_zone(lon_deg: np.ndarray, lat_deg: np.ndarray) -> str:
-    """``EPSG:326zz`` / ``EPSG:327zz``: the WGS 84 UTM zone of the fixes' median position."""
-    from pyproj.aoi import AreaOfInterest
-    from pyproj.database import query_utm_crs_info
+    """``EPSG:326zz`` / ``EPSG:327zz``: the WGS 84 UTM zone of the fixes' median position
+    (a polar stereographic CRS outside UTM's latitudes)."""
+    from terrain.grid import utm_crs
 
-    lon, lat = float(np.median(lon_deg)), float(np.median(lat_deg))
-    info = query_utm_crs_info("WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat))
-    return f"EPSG:{info[0].code}"
+    lat = float(np.median(lat_deg))
+    crs = utm_crs(float(np.median(lon_deg)), lat)
+    if crs is None:
+        return "EPSG:3031 (polar stereographic south)" if lat < 0 else "EPSG:3413 (north)"
+    return f"EPSG:{crs.to_epsg()}"

@@ -81,8 +81,8 @@ def _planning_frame(source) -> tuple:
     """The DEM's own CRS and footprint when projected; else the UTM zone of its centre and
     the largest rectangle in it that the DEM covers."""
     from pyproj import Transformer
-    from pyproj.aoi import AreaOfInterest
-    from pyproj.database import query_utm_crs_info
+
+    from terrain.grid import utm_crs
 
     w, s, e, n = source.bounds
     if source.crs.is_projected:
@@ -90,8 +90,8 @@ def _planning_frame(source) -> tuple:
     lon, lat = Transformer.from_crs(source.crs, "EPSG:4326", always_xy=True).transform(
         (w + e) / 2, (s + n) / 2
     )
-    utm = query_utm_crs_info("WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat))
-    crs = utm[0].code if utm else None
+    utm = utm_crs(lon, lat)
+    crs = utm.to_epsg() if utm else None
     if crs is None:
         raise bad_input(
             "--prior", source.crs.name, "a projected DEM", "reproject it: gdalwarp -t_srs ..."

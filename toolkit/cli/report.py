@@ -87,7 +87,7 @@ def _certified_dem(run_dir: Path, cert_path: Path, dem: Path | None) -> Path:
     """The DEM to draw: --dem, else the run's product, else the file the certificate names
     (``glacimap certify`` of a surveyor's own GeoTIFF), found as given, in RUN_DIR or beside
     the certificate; a named file must still have the bytes that were certified."""
-    import hashlib
+    from ..provenance import file_sha256
 
     if dem is not None:
         if not dem.is_file():
@@ -112,7 +112,7 @@ def _certified_dem(run_dir: Path, cert_path: Path, dem: Path | None) -> Path:
             f"a folder with {names}, or the certified DEM {name!r} in reach",
             "pass the certified DEM: glacimap report RUN_DIR --dem DEM.tif",
         )
-    digest = hashlib.sha256(found.read_bytes()).hexdigest()
+    digest = file_sha256(found)
     if named.get("sha256") not in (None, digest):
         raise bad_input(
             "DEM",
