@@ -35,6 +35,7 @@ from .product import json_rows, mean_coefficients, software_version, terrain_dat
 from .samples import ElevationSamples
 from .tiled import (
     TileSpec,
+    largest_gap,
     long_scale_part,
     predict_tiled,
     shortest_lengthscale,
@@ -46,6 +47,10 @@ __all__ = ["TerrainGP"]
 _LOG_2PI = np.log(2.0 * np.pi)
 #: Above n^2 * m multiply-adds (~2 s here) "auto" predicts the variance on a lattice or tiled.
 EXACT_PREDICT_FLOPS = 4e10
+#: From this many samples ``local_amplitude="auto"`` turns per-tile amplitudes on (and
+#: ``method="auto"`` tiles): measured on nine real DEMs at 3,000 samples (docs/terrain.md
+#: "Local amplitude from 1,000 samples").
+AMPLITUDE_MIN_SAMPLES = 1000
 
 
 class TerrainGP(HyperparameterMixin):
@@ -89,12 +94,15 @@ class TerrainGP(HyperparameterMixin):
     local_amplitude : bool or "auto"
         Each tile scales the kernel by its own MAP amplitude (Eq 9 on its samples,
         :func:`terrain.tiled.local_amplitude`) for terrain whose roughness varies; length
-        scales and noise stay global. ``"auto"`` (default): on whenever the fit takes the
-        tiled GP (``method="tiled"``, or ``"auto"`` above ``exact_max_samples``), off for
-        the exact GP, which stays the stationary reference; measured on nine real DEMs and
-        the synthetic site at 50,000 samples (docs/terrain.md "Local amplitude by
-        default"). ``True``: always (``method="auto"`` then always tiles, ``"exact"`` is
-        rejected); ``False``: never.
+        scales and noise stay global. ``"auto"`` (default): on from
+        :data:`AMPLITUDE_MIN_SAMPLES` (1,000) samples with ``method="auto"``, which then
+        tiles, provided the tiles hold any long-scale kernel part (the survey's widest gap,
+        :func:`terrain.tiled.largest_gap`, within the halo); also on whenever the fit tiles
+        anyway. Below 1,000 samples, or asked for ``method="exact"``, the exact stationary GP
+        (the reference). Measured on nine real DEMs at 1,000, 3,000 and 50,000 samples and
+        the synthetic site (docs/terrain.md "Local amplitude from 1,000 samples").
+        ``True``: always (``method="auto"`` then always tiles, ``"exact"`` is rejected);
+        ``False``: never.
     amplitude_prior_sd : float
         Prior sd of a tile's log amplitude around the global fit (1.0: a factor e).
 
@@ -248,9 +256,17 @@ class TerrainGP(HyperparameterMixin):
         tiles = self.tiles or TileSpec.for_lengthscale(shortest_lengthscale(kernel))
         self.tiles_ = tiles
         long_part = long_scale_part(kernel, tiles.halo)
+        # A long-scale part is held by the tiles where data lie within a halo of everywhere.
+        held = long_part is None or largest_gap(samples.xy) <= tiles.halo
+        amplitude_auto = (
+            self.local_amplitude == "auto"
+            and self.method == "auto"
+            and samples.n >= AMPLITUDE_MIN_SAMPLES
+            and held
+        )
         exact = self.method == "exact" or (
             self.method == "auto"
-            and not self._amplitude_always
+            and not (self._amplitude_always or amplitude_auto)
             and (
                 samples.n <= self.exact_max_samples
                 or (long_part is not None and samples.n <= 3 * self.exact_max_samples)
@@ -261,7 +277,7 @@ class TerrainGP(HyperparameterMixin):
             self.local_amplitude == "auto" and not exact
         )
         if not exact:
-            if long_part is not None:
+            if not held:
                 warn_long_scale(long_part, tiles.halo)
             # Tiled: no global factor. GLS coefficients of a linear mean on a subset.
             if n_coef(self.mean_):

@@ -31,12 +31,15 @@ from typing import Any
 import numpy as np
 from scipy.linalg import cho_solve, eigh, solve_triangular
 from scipy.optimize import minimize_scalar
+from scipy.spatial import cKDTree
 
 from .errors import TilingWarning, bad_input
+from .heldout_design import default_targets
 from .linalg import cholesky_jitter
 
 __all__ = [
     "TileSpec",
+    "largest_gap",
     "local_amplitude",
     "long_scale_part",
     "predict_tiled",
@@ -117,6 +120,15 @@ def long_scale_part(kernel, halo: float):
         if float(np.min(p.lengths)) > halo and p.variance >= 0.1 * short.variance:
             return p
     return None
+
+
+def largest_gap(xy: np.ndarray, n_side: int = 100) -> float:
+    """Largest distance from a point of the samples' bounding box to its nearest sample, m:
+    the widest gap in the survey, measured on an ``n_side`` x ``n_side`` lattice of the box
+    (:func:`terrain.heldout_design.default_targets`). A tile sees data within its halo, so a
+    long-scale kernel part is held by the data (no reversion to the prior mean inside the
+    survey) when this is at most the halo."""
+    return float(cKDTree(xy).query(default_targets(xy, n_side))[0].max())
 
 
 def shortest_lengthscale(kernel) -> float:
@@ -358,9 +370,10 @@ def warn_long_scale(long_part: Any, halo: float) -> None:
     """Warn that tiles cannot hold ``long_part`` (see :func:`long_scale_part`)."""
     warnings.warn(
         f"the tiled GP sees data only within {halo:.0f} m of a tile, but the kernel part "
-        f"{long_part!r} carries a large variance at a longer scale: far from data it will "
-        "revert to the prior mean. Use a prior mean that holds the long scale (a satellite "
-        "DEM), method='exact', or TileSpec(halo=...).",
+        f"{long_part!r} carries a large variance at a longer scale and the survey leaves "
+        "gaps wider than that: far from data the map will revert to the prior mean. Use a "
+        "prior mean that holds the long scale (a satellite DEM), method='exact', or "
+        "TileSpec(halo=...).",
         TilingWarning,
         stacklevel=3,
     )

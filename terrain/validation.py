@@ -288,11 +288,18 @@ def _clone(est: Any, **overrides: Any) -> Any:
 
 
 def _fixed_overrides(est: Any) -> dict[str, Any]:
+    """The fitted model's kernel and nugget, held fixed, and the GP it chose (exact or
+    tiled, with or without per-tile amplitudes), so that a fold with fewer samples than the
+    map is not scored with another model (``local_amplitude="auto"`` turns on from 1,000)."""
     out = dict(_HYPER_FIXED)
     if hasattr(est, "kernel_"):
         out["kernel"] = est.kernel_
     if hasattr(est, "nugget_"):
         out["nugget"] = est.nugget_
+    if hasattr(est, "method_"):
+        out["method"] = est.method_
+    if hasattr(est, "local_amplitude_"):
+        out["local_amplitude"] = est.local_amplitude_
     return out
 
 

@@ -18,7 +18,10 @@ def fitted():
     z = np.sin(xy[:, 0] / 20) * 3 + xy[:, 1] / 30 + rng.normal(0, 0.1, len(xy))
     samples = ElevationSamples(xy, z, 0.1**2, crs=grid.crs)
     kernel = SquaredExponential(1.0, 15.0) + SquaredExponential(4.0, 300.0)
-    gp = TerrainGP(kernel=kernel, optimize=False, nugget=1e-4, nugget_bounds="fixed")
+    # local_amplitude=False: 1,100 samples would take per-tile amplitudes (tiled) by default
+    gp = TerrainGP(
+        kernel=kernel, optimize=False, nugget=1e-4, nugget_bounds="fixed", local_amplitude=False
+    )
     return grid, gp.fit(samples)
 
 

@@ -1,5 +1,7 @@
 """Tiled local GP: equals the exact GP where both run, seamless, deterministic, Dask-ready."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -91,8 +93,23 @@ def test_far_from_data_is_prior_and_deterministic(setup):
 
 def test_auto_switches_at_threshold(setup):
     _, samples, _, _, kw = setup
+    kw = {**kw, "local_amplitude": False}  # the stationary GP: exact up to the threshold
     assert TerrainGP(exact_max_samples=5000, **kw).fit(samples).method_ == "exact"
     assert TerrainGP(exact_max_samples=1000, **kw).fit(samples).method_ == "tiled"
+
+
+def test_auto_amplitude_from_min_samples(setup):
+    from terrain.gp import AMPLITUDE_MIN_SAMPLES
+
+    _, samples, _, _, kw = setup
+    assert samples.n >= AMPLITUDE_MIN_SAMPLES == 1000
+    gp = TerrainGP(exact_max_samples=5000, **kw).fit(samples)  # default local_amplitude="auto"
+    assert (gp.method_, gp.local_amplitude_) == ("tiled", True)
+    few = samples.subset(np.arange(samples.n) < AMPLITUDE_MIN_SAMPLES - 1)
+    gp = TerrainGP(exact_max_samples=5000, **kw).fit(few)
+    assert (gp.method_, gp.local_amplitude_) == ("exact", False)  # the stationary reference
+    gp = TerrainGP(method="exact", **kw).fit(samples)  # asked for: no amplitudes
+    assert (gp.method_, gp.local_amplitude_) == ("exact", False)
 
 
 def test_dask_chunks_equal_in_memory(setup):
@@ -129,10 +146,35 @@ def test_bad_method_and_chunks(setup):
 
 def test_long_scale_kernel_prefers_exact_or_warns(setup):
     from terrain import TilingWarning
+    from terrain.tiled import largest_gap
 
     _, samples, _, _, kw = setup
     kw = {**kw, "kernel": Matern(50.0, 400.0, nu=2.5) + Matern(0.3, 8.0, nu=2.5)}
-    # auto: a significant 400 m part cannot be tiled with a ~24 m halo -> exact up to 3x
-    assert TerrainGP(exact_max_samples=1000, **kw).fit(samples).method_ == "exact"
-    with pytest.warns(TilingWarning, match="long"):
-        TerrainGP(exact_max_samples=400, **kw).fit(samples)
+    # A survey with a 60 m wide empty band: wider than the ~24 m halo (3 x 8 m), so the
+    # tiles cannot hold the 400 m part there.
+    gappy = samples.subset(np.abs(samples.xy[:, 0] - 80.0) > 30.0)
+    assert largest_gap(gappy.xy) > 24.0 * 1.2
+    # auto: exact up to 3x exact_max_samples (no per-tile amplitudes), a warning above
+    gp = TerrainGP(exact_max_samples=1000, **kw).fit(gappy)
+    assert (gp.method_, gp.local_amplitude_) == ("exact", False)
+    with pytest.warns(TilingWarning, match="gaps wider"):
+        TerrainGP(exact_max_samples=300, **kw).fit(gappy)
+    # Dense data (largest gap well inside the halo) hold the long part: tiled with per-tile
+    # amplitudes, no warning (hand check: 1,500 uniform points on 160 x 120 m).
+    assert largest_gap(samples.xy) < 10.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TilingWarning)
+        gp = TerrainGP(exact_max_samples=1000, **kw).fit(samples)
+    assert (gp.method_, gp.local_amplitude_) == ("tiled", True)
+
+
+def test_largest_gap_hand_computed():
+    from terrain.tiled import largest_gap
+
+    # Two samples at opposite corners of a 100 x 100 m box: the lattice points farthest
+    # from both lie at the ends of the anti-diagonal, the other two corners' cells.
+    xy = np.array([[0.0, 0.0], [100.0, 100.0]])
+    gap = largest_gap(xy, n_side=100)
+    # cell centres run from 0.5 to 99.5 m: the farthest is (0.5, 99.5) or (99.5, 0.5),
+    # at hypot(0.5, 99.5) = 99.501 m from (0, 0) and hypot(99.5, 0.5) from (100, 100).
+    assert gap == pytest.approx(np.hypot(0.5, 99.5), rel=1e-9)

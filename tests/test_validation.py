@@ -291,3 +291,22 @@ def test_a_noise_dominated_miss_is_called_weak_not_a_verdict():
     assert "too weak an estimate" in weak and not weak.endswith("is too small")
     far_off = {**pooled, "map_coverage_68": 0.40, "noise_share": 0.96}  # still a sentence
     assert len(coverage_verdict(far_off)) == 1
+
+
+def test_folds_score_the_model_the_map_chose():
+    # 1,200 samples: local_amplitude="auto" tiles with per-tile amplitudes; a fold trains on
+    # ~960, which on its own would take the exact stationary GP (under 1,000). The folds
+    # must score the map's model, not that one.
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(0.0, 200.0, (1200, 2))
+    z = np.sin(xy[:, 0] / 15.0) + 0.5 * np.cos(xy[:, 1] / 9.0) + rng.normal(0, NOISE, 1200)
+    samples = ElevationSamples(xy, z, NOISE**2)
+    kw = dict(kernel=SquaredExponential(VAR, ELL), nugget_bounds="fixed", optimize=False)
+    gp = TerrainGP(**kw).fit(samples)
+    assert (gp.method_, gp.local_amplitude_) == ("tiled", True)
+    cv = cross_validate(gp, samples, n_folds=5, seed=0)
+    test = cv.fold == 0
+    assert (~test).sum() < 1000
+    same = TerrainGP(method="tiled", local_amplitude=True, nugget=gp.nugget_, **kw)
+    same.fit(samples.subset(~test))
+    np.testing.assert_allclose(cv.prediction[test], same.predict(xy[test]), rtol=0, atol=1e-9)
