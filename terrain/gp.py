@@ -87,7 +87,8 @@ class TerrainGP(HyperparameterMixin):
         Seed of the one ``numpy.random.Generator`` (restarts, fit subset); in every product.
     method : {"auto", "exact", "tiled"}
         ``"auto"``: exact up to ``exact_max_samples`` samples (3x with a long-scale kernel
-        part), tiled above (:mod:`terrain.tiled`); a big grid gets the exact mean and the
+        part), tiled above (:mod:`terrain.tiled`), and tiled from 1,000 samples when
+        ``local_amplitude="auto"`` turns amplitudes on; a big grid gets the exact mean and the
         variance on a lattice (:mod:`terrain.coarse_variance`) or, tileable, the tiled GP.
     tiles : TileSpec, optional
         Tile geometry of the tiled GP; default scaled to the shortest length scale.
