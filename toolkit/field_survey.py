@@ -24,6 +24,7 @@ same kinds of files a real survey has, so that both take one road (docs/pipeline
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -170,10 +171,11 @@ def _write_checkpoints(truth, bounds, n: int, rng, path: Path) -> Path:
     z = sample_dem(truth, xy)
     crs = grid.crs.to_string()
     with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write("id,x,y,z,crs\n")
+        with open(tmp, "w", encoding="utf-8", newline="") as f:
+            out = csv.writer(f, lineterminator="\n")  # a WKT crs (no EPSG code) is quoted
+            out.writerow(["id", "x", "y", "z", "crs"])
             for i, (x, y, h) in enumerate(zip(xy[:, 0], xy[:, 1], z, strict=True)):
-                f.write(f"CP{i + 1},{x:.4f},{y:.4f},{h:.4f},{crs}\n")
+                out.writerow([f"CP{i + 1}", f"{x:.4f}", f"{y:.4f}", f"{h:.4f}", crs])
     return path
 
 

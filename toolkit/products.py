@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import csv
 import math
 from pathlib import Path
 from typing import Any
@@ -102,14 +103,15 @@ def samples_table(sel: LandmarkSelection) -> dict[str, np.ndarray]:
 
 
 def write_csv(path: Path, table: dict[str, np.ndarray]) -> Path:
-    """A dict of equal-length columns as CSV (header row), atomically."""
+    """A dict of equal-length columns as CSV (header row), atomically; a cell with a comma
+    or a quote (a CRS without an EPSG code is WKT) is quoted (``csv`` module, RFC 4180)."""
     cols = list(table)
     rows = np.column_stack([np.asarray(table[c]).astype(str) for c in cols])
     with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(",".join(cols) + "\n")
-            for r in rows:
-                f.write(",".join(r) + "\n")
+        with open(tmp, "w", encoding="utf-8", newline="") as f:
+            out = csv.writer(f, lineterminator="\n")
+            out.writerow(cols)
+            out.writerows(rows.tolist())
     return path
 
 
