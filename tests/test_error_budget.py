@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from terrain import ElevationSamples, Grid, Matern, TerrainGP
 from toolkit.error_budget import correlated_variance, inflate_std
@@ -70,3 +71,35 @@ def test_inflation_where_the_map_leans_on_data_only():
     np.testing.assert_allclose(std[far], gp_std[far], rtol=1e-3)
     assert (std >= gp_std).all()
     np.testing.assert_array_equal(out["elevation"].values, ds["elevation"].values)
+
+
+def test_shared_horizontal_offset_enters_through_the_slope():
+    """On a plane of slope (0.1, -0.05) m/m, a map-wide east / north offset of 1-sigma
+    (1.2, 0.8) m adds w * (0.1^2 * 1.2^2 + 0.05^2 * 0.8^2) = w * 0.016 m^2 to both 1-sigmas
+    (hand computation); without ``shared_xy_std`` nothing changes."""
+    rng = np.random.default_rng(2)
+    xy = np.column_stack([rng.uniform(0, 60, 400), rng.uniform(0, 60, 400)])
+    z = 0.1 * xy[:, 0] - 0.05 * xy[:, 1] + rng.normal(0, 0.01, 400)
+    samples = ElevationSamples(xy, z, np.full(400, 0.01**2), crs="EPSG:32608")
+    plane = lambda p: 0.1 * p[:, 0] - 0.05 * p[:, 1]  # noqa: E731 - the prior mean
+    gp = TerrainGP(kernel=Matern(1.0, 20.0), mean=plane, optimize=False, nugget=1e-6)
+    gp.fit(samples)
+    grid = Grid.from_bounds((0.0, 0.0, 60.0, 60.0), 2.0, "EPSG:32608")
+    ds = gp.predict_grid(grid)
+    plain = inflate_std(ds, gp, xy, np.full(400, 0.3), shared_z_std=0.5)
+    out = inflate_std(ds, gp, xy, np.full(400, 0.3), shared_z_std=0.5, shared_xy_std=(1.2, 0.8))
+    x, y = np.meshgrid(out["x"].values, out["y"].values)
+    inside = (x > 6) & (x < 54) & (y > 6) & (y < 54)
+    gp_var = ds["elevation_std"].values.ravel() ** 2
+    w = np.clip(1.0 - gp_var / gp.kernel_.diag(np.column_stack([x.ravel(), y.ravel()])), 0, 1)
+    w = w.reshape(x.shape)
+    hand = w * (0.1**2 * 1.2**2 + 0.05**2 * 0.8**2)
+    gy, gx = np.gradient(ds["elevation"].values, ds["y"].values, ds["x"].values)
+    exact = w * (gx**2 * 1.2**2 + gy**2 * 0.8**2)  # the map's own slope (centred differences)
+    for name in ("elevation_std", "elevation_std_relative"):
+        added = out[name].values ** 2 - plain[name].values ** 2
+        np.testing.assert_allclose(added, exact, rtol=1e-9, atol=1e-12)
+        # on average the map's slope is the plane's (cell by cell it carries the noise)
+        assert np.mean(added[inside]) == pytest.approx(np.mean(hand[inside]), rel=0.05)
+    assert out.attrs["shared_horizontal_offset_std_m"] == [1.2, 0.8]
+    assert "shared_horizontal_offset_std_m" not in plain.attrs

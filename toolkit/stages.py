@@ -142,6 +142,7 @@ def reconstruct_stage(
     shared_z_std: float = 0.0,
     heldout_folds: int = 5,
     landmark_t_s: np.ndarray | None = None,
+    shared_xy_std: tuple[float, float] | None = None,
 ) -> Reconstruction:
     """The GP map (the terrain layer's defaults: kernel by evidence) with its error budget.
 
@@ -168,6 +169,9 @@ def reconstruct_stage(
     landmark_t_s : ndarray, optional
         The landmarks' mean observation times (s) for the along-track term's time
         correlation; default: the samples' ``extra["t_s"]`` when ``landmark_xy`` is not given.
+    shared_xy_std : (float, float), optional
+        1-sigma of the survey's map-wide horizontal offset, east and north (m): its error
+        through the map's slope joins both 1-sigmas (:func:`toolkit.error_budget.inflate_std`).
 
     Returns
     -------
@@ -203,6 +207,7 @@ def reconstruct_stage(
         shared_z_std,
         shared_everywhere=fitted_offset,
         landmark_t_s=landmark_t_s,
+        shared_xy_std=shared_xy_std,
     )
     product.attrs.update(
         {
@@ -243,6 +248,7 @@ def reconstruct_selection(
         landmark_xy=np.column_stack([sel.table["x"][kept], sel.table["y"][kept]]),
         landmark_rel_z_std=sel.table["z_std_m"][kept],
         shared_z_std=float(sel.shared_offset_std_m[2]),
+        shared_xy_std=(float(sel.shared_offset_std_m[0]), float(sel.shared_offset_std_m[1])),
         heldout_folds=heldout_folds,
         landmark_t_s=sel.table["t_s"][kept] if "t_s" in sel.table else None,
     )
