@@ -47,6 +47,7 @@ from scipy.special import ndtr
 
 __all__ = [
     "BLOCK_LADDER",
+    "along_track_shared",
     "default_targets",
     "distance_weights",
     "heldout_distances",
@@ -75,6 +76,62 @@ def heldout_distances(xy: np.ndarray, fold: np.ndarray) -> np.ndarray:
         test = fold == f
         d[test] = cKDTree(xy[~test]).query(xy[test])[0]
     return d
+
+
+def along_track_shared(
+    xy: np.ndarray,
+    t_s: np.ndarray,
+    fold: np.ndarray,
+    z_var: np.ndarray,
+    residual_var: np.ndarray,
+    weights: np.ndarray,
+    fraction: float,
+    tau_s: float,
+) -> tuple[float, float]:
+    """How much of the held-out residual variance is sample error that the training samples
+    share (the along-track model of :mod:`terrain.along_track`).
+
+    A rover's samples carry an along-track error, correlated in time as
+    ``exp(-|dt| / tau)``. A held-out sample observed seconds before or after its training
+    neighbours shares that error with them, so it cancels in the residual ``sample - map``
+    (the map leans on those neighbours), while the check counts it as independent noise:
+    the residuals come out smaller than stated and the map's 1-sigma reads too large. The
+    share is ``sum w rho z_var / sum w residual_var`` with ``rho = min(fraction, 1) *
+    exp(-dt / tau)``, ``dt`` the time between a held-out sample and its nearest training
+    sample.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (n, 2)
+        Sample locations, m.
+    t_s : ndarray of shape (n,)
+        Observation times, s (any origin).
+    fold : ndarray of shape (n,)
+        Fold of each sample.
+    z_var : ndarray of shape (n,)
+        The samples' stated variance, m^2.
+    residual_var : ndarray of shape (n,)
+        The residual variance the check states (map + noise), m^2.
+    weights : ndarray of shape (n,)
+        Distance-matching weights (:func:`distance_weights`).
+    fraction, tau_s : float
+        Along-track share of the stated variance and its correlation time, s.
+
+    Returns
+    -------
+    share : float
+        Shared fraction of the stated residual variance, 0..1.
+    dt_median : float
+        Median time between a held-out sample and its nearest training sample, s.
+    """
+    dt = np.empty(xy.shape[0])
+    for f in np.unique(fold):
+        test = fold == f
+        nearest = cKDTree(xy[~test]).query(xy[test])[1]
+        dt[test] = np.abs(t_s[test] - t_s[~test][nearest])
+    rho = min(float(fraction), 1.0) * np.exp(-dt / float(tau_s))
+    share = float(np.sum(weights * rho * z_var) / max(np.sum(weights * residual_var), 1e-300))
+    return share, float(np.median(dt))
 
 
 def _ks(a: np.ndarray, b: np.ndarray) -> float:

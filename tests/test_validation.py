@@ -273,7 +273,7 @@ def test_bad_input(draw, lattice):
 def test_a_noise_dominated_miss_is_called_weak_not_a_verdict():
     """noise_share above 0.9: a map-level miss is stated as too weak an estimate to judge
     the 1-sigma (glacier and volcano at 50k read 62.7 % at 68 with truth 75.4 and 70.0 %)."""
-    from terrain.validation import NOISE_SHARE_WEAK, coverage_verdict
+    from terrain.heldout_verdict import NOISE_SHARE_WEAK, coverage_verdict
 
     pooled = {
         "map_coverage_68": 0.627,
@@ -291,6 +291,52 @@ def test_a_noise_dominated_miss_is_called_weak_not_a_verdict():
     assert "too weak an estimate" in weak and not weak.endswith("is too small")
     far_off = {**pooled, "map_coverage_68": 0.40, "noise_share": 0.96}  # still a sentence
     assert len(coverage_verdict(far_off)) == 1
+
+
+def test_shared_along_track_error_makes_too_large_a_weak_reading():
+    """A held-out sample seen seconds from its training neighbours shares their along-track
+    error, which cancels in the residual: a 1-sigma read as too large is then no verdict
+    (the example field folder read 93.6 % at 68 while the truth covered 34 %), one read as
+    too small still is (cancellation only shrinks residuals)."""
+    from terrain.heldout_verdict import ALONG_TRACK_SHARED_WEAK, coverage_verdict
+
+    high = {
+        "map_coverage_68": 0.936,
+        "map_coverage_68_interval": [0.81, 1.0],
+        "map_coverage_95": 0.95,
+        "map_coverage_95_interval": [0.94, 0.96],
+        "noise_share": 0.6,
+        "heldout_dt_median_s": 2.0,
+    }
+    assert ALONG_TRACK_SHARED_WEAK == 0.5
+    (verdict,) = coverage_verdict({**high, "along_track_shared": 0.3})
+    assert verdict.endswith("the map's 1-sigma is too large")
+    (weak,) = coverage_verdict({**high, "along_track_shared": 0.58})
+    assert "58 % of the residual variance" in weak and "a median 2 s apart" in weak
+    assert "too weak an estimate" in weak
+    low = {**high, "map_coverage_68": 0.55, "map_coverage_68_interval": [0.5, 0.6]}
+    (still,) = coverage_verdict({**low, "along_track_shared": 0.58})
+    assert still.endswith("the map's 1-sigma is too small")
+
+
+def test_cross_validate_measures_the_shared_along_track_error(draw):
+    """Samples with observation times get ``along_track_shared`` (rho = min(1.04, 1) *
+    exp(-dt / 139 s) of their variance, over the stated residual variance) and the median
+    time to the nearest training sample; without times, neither."""
+    gp = _gp(nugget=0.0)
+    plain = cross_validate(gp, draw, n_folds=5, seed=0)
+    assert "along_track_shared" not in plain.pooled
+    # a rover driving the 5 tracks at 1 m/s: time = distance along the path
+    t = np.arange(draw.n) * 2.5
+    timed = ElevationSamples(draw.xy, draw.z, draw.z_var, extra={"t_s": t})
+    cv = cross_validate(gp, timed, n_folds=5, seed=0)
+    share, dt = cv.pooled["along_track_shared"], cv.pooled["heldout_dt_median_s"]
+    assert 0.0 < share < 1.0 and dt > 0
+    # the same samples seen an hour apart each share nothing
+    far = ElevationSamples(draw.xy, draw.z, draw.z_var, extra={"t_s": t * 3600.0})
+    assert cross_validate(gp, far, n_folds=5, seed=0).pooled["along_track_shared"] < 1e-6
+    # same map scores as without times: only the verdict's reading changes
+    assert cv.pooled["map_coverage_68"] == plain.pooled["map_coverage_68"]
 
 
 def test_folds_score_the_model_the_map_chose():

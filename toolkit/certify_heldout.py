@@ -12,7 +12,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from terrain.errors import bad_input
-from terrain.validation import CrossValidation, coverage_verdict
+from terrain.heldout_verdict import coverage_verdict
+from terrain.validation import CrossValidation
 from terrain.validation import json_safe as _clean
 
 __all__ = ["heldout_block"]
@@ -38,6 +39,8 @@ _HELDOUT_MAP = (
     "map_coverage_95_interval",
     "heldout_distance_median_m",
     "map_distance_median_m",
+    "along_track_shared",
+    "heldout_dt_median_s",
 )
 _Z_DEFINITION = "(map - held-out sample) / sd, the sign of mean_error_m"
 
@@ -54,7 +57,7 @@ def heldout_block(
         a block this function made (re-read from a certificate).
     tolerance_points : float
         Coverage off nominal by more than this many percentage points gets a verdict
-        sentence (:func:`terrain.validation.coverage_verdict`).
+        sentence (:func:`terrain.heldout_verdict.coverage_verdict`).
 
     Returns
     -------
