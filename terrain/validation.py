@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import inspect
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from numbers import Integral
 from typing import Any
@@ -301,6 +302,7 @@ def cross_validate(
     seed: int = 0,
     refit: str = "hyperparameters-fixed",
     targets: Any = None,
+    extra_variance: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> CrossValidation:
     """Spatial block K-fold cross-validation of a GP map's mean and 1-sigma.
 
@@ -335,6 +337,13 @@ def cross_validate(
         Where the map is used (its grid), m, in the samples' CRS: sets the block size and the
         distance-matching weights of the map-level check. Default: a 100 x 100 lattice over
         the samples' bounding box.
+    extra_variance : callable, optional
+        ``extra_variance(train, xy, var_f) -> var`` (m^2, shape (m,)): variance the map states
+        beyond the GP's at held-out points ``xy`` (m, 2) given the training mask ``train``
+        (n,) and the fold's GP variance ``var_f`` there, counted as map variance. The rover
+        pipeline passes its error budget's along-track term (``toolkit.error_budget``), so
+        the check is of the 1-sigma the product states, less the map-wide shared terms that
+        held-out samples carry too and cannot see.
 
     Returns
     -------
@@ -399,6 +408,8 @@ def cross_validate(
         m, s = model.predict(samples.xy[test], return_std=True)
         mu[test] = m
         latent_var[test] = np.asarray(s, dtype=float) ** 2
+        if extra_variance is not None:
+            latent_var[test] += extra_variance(~test, samples.xy[test], latent_var[test])
         noise_var[test] = float(getattr(model, "nugget_", 0.0)) + samples.z_var[test]
         sd[test] = np.sqrt(latent_var[test] + noise_var[test])
         row = {"fold": k, "n_train": int((~test).sum()), "n_blocks": int(blocks_per_fold[k])}

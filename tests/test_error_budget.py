@@ -103,3 +103,28 @@ def test_shared_horizontal_offset_enters_through_the_slope():
         assert np.mean(added[inside]) == pytest.approx(np.mean(hand[inside]), rel=0.05)
     assert out.attrs["shared_horizontal_offset_std_m"] == [1.2, 0.8]
     assert "shared_horizontal_offset_std_m" not in plain.attrs
+
+
+def test_heldout_hook_is_the_maps_along_track_term_from_training_samples_only():
+    """toolkit.error_budget.heldout_along_track: at held-out points, w * correlated_variance
+    over the training samples (what inflate_std adds to the map), zero without an
+    along-track 1-sigma (independent spot heights)."""
+    from toolkit.error_budget import along_track_variance, heldout_along_track
+
+    rng = np.random.default_rng(3)
+    xy = np.column_stack([rng.uniform(0, 60, 200), rng.uniform(0, 60, 200)])
+    z = np.sin(xy[:, 0] / 15.0) + rng.normal(0, 0.05, 200)
+    samples = ElevationSamples(xy, z, np.full(200, 0.05**2), crs="EPSG:32608")
+    gp = TerrainGP(kernel=Matern(1.0, 20.0), optimize=False, nugget=1e-6).fit(samples)
+    rel, t = rng.uniform(0.2, 0.6, 200), np.arange(200.0) * 3.0
+    train = np.arange(200) % 4 != 0
+    query = xy[~train]
+    var_f = gp.predict(query, return_std=True)[1] ** 2
+    hook = heldout_along_track(gp, xy, xy, rel, t)
+    expect = along_track_variance(
+        query, var_f, gp.kernel_.diag(query), xy[train], rel[train], 10, t[train]
+    )
+    np.testing.assert_allclose(hook(train, query, var_f), expect, rtol=1e-12)
+    assert (expect > 0).all()
+    none = heldout_along_track(gp, xy, xy, np.zeros(200))
+    np.testing.assert_array_equal(none(train, query, var_f), 0.0)

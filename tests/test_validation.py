@@ -356,3 +356,27 @@ def test_folds_score_the_model_the_map_chose():
     same = TerrainGP(method="tiled", local_amplitude=True, nugget=gp.nugget_, **kw)
     same.fit(samples.subset(~test))
     np.testing.assert_allclose(cv.prediction[test], same.predict(xy[test]), rtol=0, atol=1e-9)
+
+
+def test_extra_variance_is_map_variance_from_the_training_folds(draw):
+    """``extra_variance`` adds to each held-out sample's map variance (hand check: a constant
+    0.01 m^2 adds exactly 0.01 to every predictive variance), and it is called with the
+    fold's training mask and the held-out points."""
+    gp = _gp(nugget=0.0)
+    calls = []
+
+    def extra(train, xy, var_f):
+        calls.append((train.copy(), xy.copy(), var_f.copy()))
+        return np.full(len(xy), 0.01)
+
+    plain = cross_validate(gp, draw, n_folds=5, seed=0)
+    more = cross_validate(gp, draw, n_folds=5, seed=0, extra_variance=extra)
+    np.testing.assert_allclose(more.predictive_sd**2, plain.predictive_sd**2 + 0.01, rtol=1e-12)
+    assert len(calls) == 5
+    for k, (train, xy, var_f) in enumerate(calls):
+        test = more.fold == k
+        np.testing.assert_array_equal(train, ~test)
+        np.testing.assert_array_equal(xy, draw.xy[test])
+        assert var_f.shape == (test.sum(),) and (var_f > 0).all()
+    # a larger stated map variance reads as a map 1-sigma that covers more
+    assert more.pooled["map_coverage_68"] >= plain.pooled["map_coverage_68"]

@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 
 from terrain.along_track import AlongTrackModel
 
-__all__ = ["correlated_variance", "inflate_std"]
+__all__ = ["along_track_variance", "correlated_variance", "heldout_along_track", "inflate_std"]
 
 
 def correlated_variance(
@@ -98,6 +98,48 @@ def correlated_variance(
     return model.fraction * out
 
 
+def along_track_variance(
+    query_xy: np.ndarray,
+    var_gp: np.ndarray,
+    prior_var: np.ndarray,
+    landmark_xy: np.ndarray,
+    relative_z_std: np.ndarray,
+    k: int = 10,
+    landmark_t_s: np.ndarray | None = None,
+) -> np.ndarray:
+    """The along-track variance the map adds at ``query_xy``: ``w * correlated_variance``
+    with ``w = 1 - var_gp / prior_var`` (clipped to [0, 1]), the share of the prior variance
+    the data explained (module docstring). Shapes (m,) but ``query_xy`` (m, 2); m^2."""
+    w = np.clip(1.0 - var_gp / np.maximum(prior_var, 1e-12), 0.0, 1.0)
+    return w * correlated_variance(query_xy, landmark_xy, relative_z_std, k, landmark_t_s)
+
+
+def heldout_along_track(
+    gp,
+    xy: np.ndarray,
+    landmark_xy: np.ndarray,
+    relative_z_std: np.ndarray,
+    landmark_t_s: np.ndarray | None = None,
+    k: int = 10,
+):
+    """The ``extra_variance`` hook of :func:`terrain.cross_validate` for samples at ``xy``
+    (n, 2): the along-track variance :func:`inflate_std` adds to the map, from each fold's
+    training samples only, so the held-out check is of the 1-sigma the product states (less
+    the shared offset, which held-out samples carry too). Each sample takes the relative
+    1-sigma and time of its nearest landmark (the same point unless duplicates were
+    merged)."""
+    nearest = cKDTree(np.asarray(landmark_xy, float)).query(np.asarray(xy, float))[1]
+    rel = np.asarray(relative_z_std, float)[nearest]
+    t = None if landmark_t_s is None else np.asarray(landmark_t_s, float)[nearest]
+
+    def extra(train: np.ndarray, query: np.ndarray, var_f: np.ndarray) -> np.ndarray:
+        prior = gp.kernel_.diag(query)
+        t_train = None if t is None else t[train]
+        return along_track_variance(query, var_f, prior, xy[train], rel[train], k, t_train)
+
+    return extra
+
+
 def inflate_std(
     product,
     gp,
@@ -148,7 +190,7 @@ def inflate_std(
     prior = gp.kernel_.diag(q)
     post = product["elevation_std"].values.ravel() ** 2
     w = np.clip(1.0 - post / np.maximum(prior, 1e-12), 0.0, 1.0)
-    track = w * correlated_variance(q, landmark_xy, relative_z_std, k, landmark_t_s)
+    track = along_track_variance(q, post, prior, landmark_xy, relative_z_std, k, landmark_t_s)
     if shared_xy_std is not None:  # a sideways shift of the map, through the slope
         gy, gx = np.gradient(product["elevation"].values, product["y"].values, product["x"].values)
         sx, sy = (float(v) for v in shared_xy_std)

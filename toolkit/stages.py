@@ -24,7 +24,7 @@ from factorgraph.select import LandmarkSelection, select_landmarks
 from terrain import ElevationSamples, Grid, TerrainGP, cross_validate
 from terrain.errors import InputError, bad_input
 
-from .error_budget import inflate_std
+from .error_budget import heldout_along_track, inflate_std
 
 __all__ = [
     "Reconstruction",
@@ -220,8 +220,16 @@ def reconstruct_stage(
     heldout, why = None, "heldout_folds = 0"
     if heldout_folds:
         try:
+            along = heldout_along_track(
+                gp, samples.xy, landmark_xy, landmark_rel_z_std, landmark_t_s
+            )
             heldout = cross_validate(
-                gp, samples, n_folds=int(heldout_folds), seed=seed, targets=grid
+                gp,
+                samples,
+                n_folds=int(heldout_folds),
+                seed=seed,
+                targets=grid,
+                extra_variance=along,
             )
             why = ""
         except InputError as exc:  # too few samples or blocks: said, not fatal
