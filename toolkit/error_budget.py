@@ -110,8 +110,14 @@ def along_track_variance(
     """The along-track variance the map adds at ``query_xy``: ``w * correlated_variance``
     with ``w = 1 - var_gp / prior_var`` (clipped to [0, 1]), the share of the prior variance
     the data explained (module docstring). Shapes (m,) but ``query_xy`` (m, 2); m^2."""
-    w = np.clip(1.0 - var_gp / np.maximum(prior_var, 1e-12), 0.0, 1.0)
+    w = lean_weight(var_gp, prior_var)
     return w * correlated_variance(query_xy, landmark_xy, relative_z_std, k, landmark_t_s)
+
+
+def lean_weight(var_gp: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
+    """How much the map leans on the data: ``w = 1 - var_gp / prior_var`` clipped to [0, 1]
+    (0 far from data, ~1 among the landmarks), shape of ``var_gp``."""
+    return np.clip(1.0 - var_gp / np.maximum(prior_var, 1e-12), 0.0, 1.0)
 
 
 def heldout_along_track(
@@ -189,7 +195,7 @@ def inflate_std(
     q = np.column_stack([xx.ravel(), yy.ravel()])
     prior = gp.kernel_.diag(q)
     post = product["elevation_std"].values.ravel() ** 2
-    w = np.clip(1.0 - post / np.maximum(prior, 1e-12), 0.0, 1.0)
+    w = lean_weight(post, prior)
     track = along_track_variance(q, post, prior, landmark_xy, relative_z_std, k, landmark_t_s)
     if shared_xy_std is not None:  # a sideways shift of the map, through the slope
         gy, gx = np.gradient(product["elevation"].values, product["y"].values, product["x"].values)
