@@ -47,7 +47,19 @@ for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
 
 from _harness import in_subprocess, table, write_json  # noqa: E402
 
-DEMS = ("olinda", "rm", "prism", "lux", "glacier", "jacksboro", "topobathy", "bei", "volcano")
+DEMS = (
+    "olinda",
+    "rm",
+    "prism",
+    "lux",
+    "glacier",
+    "jacksboro",
+    "topobathy",
+    "bei",
+    "volcano",
+    "gorillas",
+    "clm",
+)
 NODATA = -9999.0
 
 

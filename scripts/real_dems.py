@@ -25,11 +25,19 @@ elevation data, downloaded with ``apt-get download`` and unpacked with ``dpkg -x
 ``bei``     r-cran-spatstat.data ``bei.extra$elev`` (R lazy-load database ``data/Rdata.rdb``
             with its index ``Rdata.rdx``): a 101 x 201 ground survey at 5 m of the 1000 m x
             500 m Barro Colorado Island forest plot, Panama (relief 40 m); local metres.
+``gorillas`` r-cran-spatstat.data ``gorillas.extra$elevation``: a 149 x 181 satellite DEM at
+            30.7 m of the Kagwene Gorilla Sanctuary, Cameroon (1,165-2,062 m; 22 % of the
+            cells NA outside the sanctuary's window), UTM zone 32N metres (spatstat's
+            ``?gorillas``).
+``clm``     r-cran-spatstat.data ``clmfires.extra$clmcov200$elevation``: Castilla-La Mancha,
+            Spain, 200 x 200 cells of 2 km (8-2,310 m); spatstat's own km plane, read here as
+            metres in a local transverse Mercator frame.
 
 The two matplotlib files ship with matplotlib (a glacimap dependency), so they need no
 registry: sites made from them were never used to choose glacimap's defaults (added in
 session 6 as held-back terrain, docs/terrain.md "Two DEMs held back"). ``bei`` and
-``volcano`` were added in session 7 the same way: held back, never used to choose anything.
+``volcano`` were added in session 7 the same way, ``gorillas`` and ``clm`` in session 9:
+held back, never used to choose anything.
 
 Files are cached under ``$GLACIMAP_DATA`` (default ``~/.cache/glacimap/real-dems``).
 :class:`RealDataUnavailable` says why when the registry cannot be reached; tests and
@@ -72,7 +80,10 @@ PACKAGES = {
         "glacier": "usr/lib/R/site-library/fields/data/glacier.rda",
     },
     # an R lazy-load database: the objects (.rdb) and their index (.rdx), cached side by side
-    "r-cran-spatstat.data": {"bei": "usr/lib/R/site-library/spatstat.data/data/Rdata.rdb"},
+    "r-cran-spatstat.data": {
+        name: "usr/lib/R/site-library/spatstat.data/data/Rdata.rdb"
+        for name in ("bei", "gorillas", "clm")
+    },
     "r-base-core": {"volcano": "usr/lib/R/library/datasets/data/Rdata.rdb"},
 }
 #: Cached file name of each DEM (a lazy-load database is renamed after its package).
@@ -81,8 +92,16 @@ FILES = {
     for pkg, files in PACKAGES.items()
     for name, rel in files.items()
 }
-#: R objects read from a lazy-load database: DEM name -> (object, element).
-LAZYLOAD = {"bei": ("bei.extra", "elev"), "volcano": ("volcano", None)}
+#: R objects read from a lazy-load database: DEM name -> (object, path of list elements to
+#: the spatstat "im", metres per coordinate unit, CRS of the coordinates).
+LAZYLOAD = {
+    "volcano": ("volcano", (), 10.0, None),  # a bare matrix on a 10 m grid
+    "bei": ("bei.extra", ("elev",), 1.0, None),
+    "gorillas": ("gorillas.extra", ("elevation",), 1.0, "EPSG:32632"),
+    "clm": ("clmfires.extra", ("clmcov200", "elevation"), 1000.0, None),
+}
+#: R's NA for integers (an "im" of integer elevations stores its NA cells as this).
+R_NA_INTEGER = -(2**31)
 #: Real DEMs that ship with matplotlib (``matplotlib.cbook.get_sample_data``).
 MATPLOTLIB = {"jacksboro": "jacksboro_fault_dem.npz", "topobathy": "topobathy.npz"}
 NAMES = tuple(FILES) + tuple(MATPLOTLIB)
@@ -173,7 +192,10 @@ def _read_lazyload(rdb: Path, obj: str) -> dict:
         else:
             body, unpack = blob[4:], zlib.decompress
         parsed = rdata.parser.parse_data(unpack(body))
-        return rdata.conversion.convert(parsed, default_encoding="utf8")
+        # factor images (gorillas.extra$vegetation) stay integer codes: rdata's factor
+        # constructor fails on a factor matrix, and no DEM is a factor
+        classes = {**rdata.conversion.DEFAULT_CLASS_MAP, "factor": lambda obj, attrs: obj}
+        return rdata.conversion.convert(parsed, classes, default_encoding="utf8")
 
 
 def load(name: str) -> xr.DataArray:
@@ -182,7 +204,8 @@ def load(name: str) -> xr.DataArray:
     ``olinda`` keeps its UTM 25S CRS; ``rm``, ``prism`` and ``lux`` are in EPSG:4326 (degrees: a
     geographic DEM, as a user's satellite product may be); ``glacier`` is gridded at 100 m
     in a local transverse Mercator frame (its locations are km in an unnamed plane); ``bei``
-    and ``volcano`` are in their own metres, labelled with the same local transverse Mercator frame.
+    and ``volcano`` are in their own metres, labelled with the same local transverse Mercator frame;
+    ``gorillas`` is in UTM 32N, ``clm`` in spatstat's km plane read as local metres.
     """
     if name not in NAMES:
         raise ValueError(f"name: expected one of {NAMES}, got {name!r}")
@@ -205,17 +228,20 @@ def load(name: str) -> xr.DataArray:
         x, y = np.asarray(d["x"], float), np.asarray(d["y"], float)[::-1]
         return _array(z, x, y, "EPSG:4326", name)
     if name in LAZYLOAD:
-        obj, element = LAZYLOAD[name]
+        obj, elements, unit_m, crs = LAZYLOAD[name]
+        im = _read_lazyload(path, obj)
+        for element in elements:
+            im = im[element]
         if name == "volcano":  # volcano[i, j]: i runs south -> north, j east -> west, 10 m
-            z = np.asarray(_read_lazyload(path, obj), float)[::-1, ::-1]
-            x = 10.0 * np.arange(z.shape[1])
-            y = 10.0 * np.arange(z.shape[0])[::-1]
+            z = np.asarray(im, float)[::-1, ::-1]
+            x = unit_m * np.arange(z.shape[1])
+            y = unit_m * np.arange(z.shape[0])[::-1]
         else:  # a spatstat "im": v[row, col], rows = y ascending
-            im = _read_lazyload(path, obj)[element]
             z = np.asarray(im["v"], float)[::-1]
-            x = np.asarray(im["xcol"], float)
-            y = np.asarray(im["yrow"], float)[::-1]
-        return _array(z, x, y, LOCAL_TM, name)
+            z[z == R_NA_INTEGER] = np.nan
+            x = unit_m * np.asarray(im["xcol"], float)
+            y = unit_m * np.asarray(im["yrow"], float)[::-1]
+        return _array(z, x, y, crs or LOCAL_TM, name)
     from scipy.interpolate import griddata
 
     d = _read_rda(path, "glacier")

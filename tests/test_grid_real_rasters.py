@@ -181,6 +181,39 @@ def test_lazyload_real_dems(name, shape, cell, lo, hi):
 
 
 @pytest.mark.parametrize(
+    "name, shape, cell, crs, nan_cells",
+    [
+        # spatstat.data::gorillas.extra$elevation: an "im" of 149 x 181 integer pixels,
+        # xstep 30.70954977 m (the object's own header), UTM 32N (spatstat's ?gorillas);
+        # R's NA_integer_ outside the sanctuary's polygon: 5,927 cells (counted here)
+        ("gorillas", (149, 181), 30.70954977, "EPSG:32632", 5927),
+        # spatstat.data::clmfires.extra$clmcov200$elevation: 200 x 200 pixels, xstep
+        # 2.00000006 km (header), no NA; km read as metres x 1000
+        ("clm", (200, 200), 2000.00006325, None, 0),
+    ],
+)
+def test_spatstat_covariate_dems(name, shape, cell, crs, nan_cells):
+    """DEMs stored among factor images (gorillas.extra) decode; R's integer NA becomes NaN
+    (counted, never an elevation of -2,147,483,648 m); km coordinates become metres."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import real_dems
+
+    try:
+        dem = real_dems.load(name)
+    except real_dems.RealDataUnavailable as exc:
+        pytest.skip(f"real DEM {name!r} unavailable: {exc}")
+    assert dem.shape == shape
+    assert int(np.isnan(dem.values).sum()) == nan_cells
+    assert float(np.nanmin(dem.values)) > 0.0  # no NA sentinel left
+    assert np.diff(dem.x.values) == pytest.approx(cell) and np.diff(dem.y.values) == pytest.approx(
+        -cell
+    )
+    assert dem.attrs["crs_wkt"] == (crs or real_dems.LOCAL_TM)
+    site = real_dems.glacier_site(name)  # its windows avoid the NA cells
+    assert site.shape == (300, 300) and np.isfinite(site.values).all()
+
+
+@pytest.mark.parametrize(
     "lon, lat, epsg",
     [
         (-134.5, 58.4, 32608),  # Juneau, the paper's site: UTM 8N
