@@ -229,6 +229,7 @@ class TerrainGP(HyperparameterMixin):
             self.fit_index_ = np.sort(
                 rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
             )
+        widest = largest_gap(samples.xy)  # the survey's widest gap, m (tiling, near ties)
         if self._searches_kernel:
             idx = self.fit_index_
             choice = select_kernel(
@@ -240,6 +241,7 @@ class TerrainGP(HyperparameterMixin):
                 nugget=nugget,
                 nugget_bounds=self.nugget_bounds,
                 spacing=median_spacing(X),
+                widest_gap=widest,
                 rng=rng,
             )
             kernel, nugget = choice.kernel, choice.nugget
@@ -258,7 +260,7 @@ class TerrainGP(HyperparameterMixin):
         self.tiles_ = tiles
         long_part = long_scale_part(kernel, tiles.halo)
         # A long-scale part is held by the tiles where data lie within a halo of everywhere.
-        held = long_part is None or largest_gap(samples.xy) <= tiles.halo
+        held = long_part is None or widest <= tiles.halo
         amplitude_auto = (
             self.local_amplitude == "auto"
             and self.method == "auto"

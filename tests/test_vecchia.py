@@ -144,3 +144,47 @@ def test_degenerate_length_scale_warns():
     with warnings.catch_warnings():
         warnings.simplefilter("error", DegenerateFitWarning)
         TerrainGP(SquaredExponential(1.0, 25.0), optimize=False).fit(samples)
+
+
+def test_near_tie_keeps_an_se_sum_whose_short_scale_fits_the_gaps(monkeypatch):
+    """The near-tie rule sends an SE-based winner to the Matérn, unless the winner is an
+    SE + SE whose short scale is at most the survey's widest gap (docs/terrain.md "Near
+    ties revisited"). BIC_TIE is widened so that the rule, not the draw, decides."""
+    from terrain import kernel_search
+    from terrain.kernels import SquaredExponential
+    from terrain.tiled import shortest_lengthscale
+
+    rng = np.random.default_rng(3)
+    X = rng.uniform(0.0, 300.0, (500, 2))
+    true = SquaredExponential(4.0, 60.0) + SquaredExponential(0.5, 10.0)
+    K = true(X, X) + 1e-4 * np.eye(500)
+    r = np.linalg.cholesky(K) @ rng.standard_normal(500)
+    z_var = np.full(500, 1e-4)
+    monkeypatch.setattr(kernel_search, "BIC_TIE", 1e9)
+    kw = dict(fit_nugget=False, nugget=1e-6, nugget_bounds="fixed", spacing=None)
+    names = ("se+se", "matern52")
+    guarded = kernel_search.select_kernel(X, r, z_var, names, **kw, rng=np.random.default_rng(0))
+    assert guarded.name == "matern52"  # the SE + SE won the BIC; the guard moved it
+    best = min(guarded.scores, key=lambda row: row["bic"])
+    assert best["name"] == "se+se"
+    kept = kernel_search.select_kernel(
+        X, r, z_var, names, **kw, widest_gap=1e3, rng=np.random.default_rng(0)
+    )
+    assert kept.name == "se+se"
+    short = shortest_lengthscale(kept.kernel)
+    narrow = kernel_search.select_kernel(
+        X, r, z_var, names, **kw, widest_gap=0.5 * short, rng=np.random.default_rng(0)
+    )
+    assert narrow.name == "matern52"  # gaps narrower than its short scale: guarded
+
+
+def test_se_sum_inside_gaps_only_for_two_se_scales():
+    from terrain.kernel_search import se_sum_inside_gaps
+    from terrain.kernels import Matern, SquaredExponential
+
+    pair = SquaredExponential(1.0, 12.0) + SquaredExponential(9.0, 80.0)
+    assert se_sum_inside_gaps("se+se", pair, 30.0)
+    assert not se_sum_inside_gaps("se+se", pair, 11.9)
+    assert not se_sum_inside_gaps("se+se", pair, None)
+    assert not se_sum_inside_gaps("se", SquaredExponential(1.0, 12.0), 30.0)
+    assert not se_sum_inside_gaps("matern52", Matern(1.0, 12.0, nu=2.5), 30.0)
