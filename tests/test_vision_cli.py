@@ -87,3 +87,31 @@ def test_localize_survives_missing_and_broken_frames(chain, tmp_path):
 def test_bad_camera_option_is_an_input_error(tmp_path):
     res = runner.invoke(app, ["simulate", "--out", str(tmp_path), "--camera", "lidar"])
     assert isinstance(res.exception, InputError) and "--camera" in str(res.exception)
+
+
+def test_long_image_plan_states_its_cost_and_warns(monkeypatch, tmp_path):
+    """Before rendering, ``--camera images`` states how many frames and about how long; a
+    plan far longer than the default survey (a whole DEM with bounds omitted) is warned."""
+    from types import SimpleNamespace
+
+    import factorgraph.vision
+    import toolkit.cli.simulate as sim
+    from toolkit.config import load_scenario
+
+    class Stop(Exception):
+        pass
+
+    def no_render(*args, **kwargs):
+        raise Stop
+
+    monkeypatch.setattr(factorgraph.vision, "simulate_images", no_render)
+    scenario = load_scenario()  # 1 m/s, a keyframe every 2 s
+    for length_m, warned in ((2_000.0, False), (20_000.0, True)):
+        with sim.console.capture() as cap, pytest.raises(Stop):
+            sim._simulate_images(
+                scenario, None, SimpleNamespace(path_length=length_m), "sunny_snow", tmp_path
+            )
+        out = " ".join(cap.get().split())
+        frames = int(length_m / 2.0)
+        assert f"{frames} frames to render and track: about" in out
+        assert ("warning" in out and "[site] bounds" in out) == warned

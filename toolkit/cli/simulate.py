@@ -74,6 +74,14 @@ def _print_log(log, plan, out_dir: Path, fmt: str) -> None:
     console.print(f"wrote the measurement log ({fmt}) into {out_dir}")
 
 
+#: Render + track seconds per frame (default front-end, 640 x 480), measured on 2 cores.
+IMAGE_SECONDS_PER_FRAME = 0.45
+#: Frames of the default survey (4 swaths over the embedded 600 m site).
+DEFAULT_SURVEY_FRAMES = 1386
+#: Above this many frames ``--camera images`` warns (twice the default survey).
+IMAGE_FRAMES_WARN = 2 * DEFAULT_SURVEY_FRAMES
+
+
 def _simulate_images(scenario, truth, plan, scene: str, images_dir: Path):
     """The log of ``plan`` seen through rendered frames (written into ``images_dir``) and
     tracked by the default front-end (:func:`factorgraph.vision.simulate_images`)."""
@@ -81,6 +89,17 @@ def _simulate_images(scenario, truth, plan, scene: str, images_dir: Path):
     from factorgraph.vision import SCENES, simulate_images, vision_sensors
 
     sensors = vision_sensors(SensorSuite.from_dict(scenario["sensors"]))
+    frames = plan.path_length / (sensors.speed_mps * sensors.keyframe_dt_s)
+    # ~0.45 s per 640 x 480 frame to render and track on one of the 2 reference cores
+    # (docs/vision.md: 1,386 frames in 11.8 min at load 6-9, 9.9 min at load 2-7)
+    minutes = frames * IMAGE_SECONDS_PER_FRAME / 60.0
+    console.print(f"{frames:.0f} frames to render and track: about {minutes:.0f} min")
+    if frames > IMAGE_FRAMES_WARN:
+        console.print(
+            f"[yellow]warning: {frames:.0f} frames is {frames / DEFAULT_SURVEY_FRAMES:.1f} x the "
+            "default survey's; set \\[site] bounds to a rover-sized window or fewer "
+            "\\[plan] n_swaths for a shorter run[/yellow]"
+        )
     with console.status(f"rendering and tracking {plan.path_length:.0f} m ({scene})..."):
         run = simulate_images(
             truth, plan, sensors, int(scenario["seed"]), SCENES[scene], images_dir=images_dir
