@@ -289,3 +289,18 @@ def test_raster_prior_cells_cover_the_map_not_only_the_samples():
     west = rec.product["elevation"].values[:, :5]  # x < 20 m: 40 m beyond the samples
     truth = 0.1 * (grid.x[:5] - W0)
     assert float(np.abs(west - truth).max()) < 0.2  # 5.1 m with the cells over the samples
+
+
+def test_a_local_crs_without_a_name_is_labelled_by_its_proj_form():
+    """A GeoTIFF's WKT of a local transverse Mercator has no EPSG code and the name
+    "unknown": the summary states its PROJ form instead (was: "site CRS unknown")."""
+    from pyproj import CRS
+
+    from toolkit.site_dem import _label
+
+    local = CRS.from_wkt(
+        CRS("+proj=tmerc +lat_0=0 +lon_0=0 +k=1 +x_0=0 +y_0=0 +ellps=WGS84").to_wkt()
+    )
+    assert local.name == "unknown" and local.to_epsg() is None
+    assert _label(local).startswith("+proj=tmerc")
+    assert _label(CRS("EPSG:32608")) == "EPSG:32608"

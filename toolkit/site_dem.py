@@ -79,10 +79,22 @@ def _ring(b: tuple[float, float, float, float], n: int = _RING) -> tuple[np.ndar
 
 def _label(crs: CRS) -> str:
     """``EPSG:n`` when the CRS has a code, else its PROJ string when short, else its name
-    (a WKT is too long to print)."""
+    (a WKT is too long to print), or its PROJ form when the name is ``unknown`` (a local
+    transverse Mercator read from a GeoTIFF's WKT)."""
+    import warnings
+
     code = crs.to_epsg()
     text = crs.to_string()
-    return f"EPSG:{code}" if code else (text if len(text) <= 120 else crs.name)
+    if code:
+        return f"EPSG:{code}"
+    if len(text) <= 120:
+        return text
+    if crs.name and crs.name != "unknown":
+        return crs.name
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "You will likely lose important projection information"
+        proj = crs.to_proj4()
+    return proj if proj and len(proj) <= 160 else "unnamed CRS (see the DEM's WKT)"
 
 
 def _fmt(b) -> str:
