@@ -183,6 +183,7 @@ def reconstruct_stage(
     rc = settings["reconstruct"]
     if hasattr(mean, "for_grid"):  # a RasterMean's coarse cells cover the map, not the samples
         mean.for_grid(grid)
+    prior_note = prior_coarsening_note(mean)
     gp = TerrainGP(
         mean=mean,  # kernel="auto": the family member with the best evidence (BIC)
         method=rc["method"],
@@ -237,7 +238,37 @@ def reconstruct_stage(
     product.attrs["heldout_check"] = (
         "spatial block CV" if heldout is not None else f"skipped: {why}"
     )
+    if prior_note:
+        product.attrs["prior_note"] = prior_note
     return Reconstruction(product=product, gp=gp, samples=samples, heldout=heldout)
+
+
+#: A prior DEM averaged into coarse cells this many times its own cell is noted.
+PRIOR_COARSENING_NOTE = 2.0
+
+
+def prior_coarsening_note(mean: Any) -> str | None:
+    """A note when a bound :class:`terrain.RasterMean` with ``cells`` (the paper's coarse
+    8 x 8 satellite prior) averages a DEM whose own cells are at least
+    :data:`PRIOR_COARSENING_NOTE` times finer: its resolution is thrown away (e.g. a 30 m
+    DEM over a 3.7 km map: 460 m cells). ``None`` otherwise (the default site: a 75 m prior
+    into 8 x 8 cells of 75 m)."""
+    if getattr(mean, "cells", None) is None or not hasattr(mean, "describe"):
+        return None
+    info = mean.describe()
+    if "requested_bounds" not in info:
+        return None
+    w, s, e, n = info["requested_bounds"]
+    ny, nx = mean.cells
+    coarse = max((e - w) / nx, (n - s) / ny)
+    own = max(info["resolution_m"])
+    if coarse < PRIOR_COARSENING_NOTE * own:
+        return None
+    return (
+        f"the prior DEM's {own:.0f} m cells are averaged into {ny} x {nx} cells of "
+        f"{coarse:.0f} m over this map (the paper's coarse satellite prior, [prior] cells); "
+        "set [prior] cells = [] to use the DEM's own resolution"
+    )
 
 
 def reconstruct_selection(
@@ -277,6 +308,7 @@ def certify_stage(
 
     cfg = settings["certify"]
     product = rec.product
+    note = product.attrs.get("prior_note")
     if checkpoints is not None:
         cert = certify(
             product, checkpoints, seed=seed, n_boot=int(cfg["n_boot"]), heldout=rec.heldout
@@ -285,6 +317,8 @@ def certify_stage(
         cert = {"seed": int(seed), "checkpoints": None, "warnings": ["no checkpoints given"]}
         if rec.heldout is not None:
             cert["heldout_calibration"] = heldout_block(rec.heldout)
+    if note:  # stated with the certificate's warnings (printed by run / process)
+        cert.setdefault("warnings", []).append(note)
     cert["reconstruction"] = {
         "kernel": product.attrs.get("kernel"),
         "kernel_selection": json.loads(product.attrs.get("kernel_selection", "[]")),

@@ -82,8 +82,10 @@ def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
 
 def print_warnings(console: Console, cert: dict[str, Any]) -> None:
     """The certificate's warnings (e.g. a dominant bias), one line each."""
+    from rich.markup import escape  # messages name TOML tables, e.g. [prior]
+
     for w in cert.get("warnings", []):
-        console.print(f"[yellow]warning:[/] {w}")
+        console.print(f"[yellow]warning:[/] {escape(str(w))}")
     held = cert.get("heldout_calibration") or {}
     for v in held.get("verdict") or []:  # the 1-sigma check in words (off by > 5 points)
-        console.print(f"[yellow]held-out check:[/] {v}")
+        console.print(f"[yellow]held-out check:[/] {escape(str(v))}")

@@ -86,7 +86,12 @@ def reconstruct(
         Path | None, typer.Option("--checkpoints", help="Independent checkpoints: certify.")
     ] = None,
     config: Annotated[
-        Path | None, typer.Option("--config", help="Settings TOML ([reconstruct], [prior]...).")
+        Path | None,
+        typer.Option(
+            "--config",
+            help="Settings TOML: its reconstruct, prior and certify tables "
+            "(keys of glacimap run --print-default).",
+        ),
     ] = None,
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
@@ -201,6 +206,8 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
         from ..certify import heldout_block
 
         cert = {"seed": seed, "heldout_calibration": heldout_block(rec.heldout)}
+        if rec.product.attrs.get("prior_note"):  # certify_stage states it with checkpoints
+            cert["warnings"] = [rec.product.attrs["prior_note"]]
     before = previous_products(out_dir, SUMMARY)
     with staged_folder(out_dir) as tmp:
         write_map_products(tmp, rec, cert, settings)
