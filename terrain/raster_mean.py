@@ -36,11 +36,17 @@ from .linear_mean import OffsetScaleMean, check_xy, check_z, coefficient_table, 
 from .prior import TriangulatedMean, coarse_dem
 from .raster_source import RasterSource, nodata_under, open_source, sample_pixels
 
-__all__ = ["RESAMPLING", "RasterMean", "gdal_average"]
+__all__ = ["AUTO_OWN_FACTOR", "PAPER_CELLS", "RESAMPLING", "RasterMean", "gdal_average"]
 
 #: Resampling methods of the reprojection (``rasterio.enums.Resampling`` names).
 RESAMPLING = ("bilinear", "cubic", "nearest", "average")
 _CHUNK = 65536  # query points per interpolation chunk
+#: The paper's coarse satellite prior: 8 x 8 cells over the map (Section IV).
+PAPER_CELLS = (8, 8)
+#: ``cells="auto"`` keeps the DEM's own cells when they are this many times finer than the
+#: paper's over the map (a 30 m DEM over 600 m: 75 m cells, 2.5 x; the default site's 75 m
+#: prior: 1 x, the paper's). Below it the two differ by the interpolation only.
+AUTO_OWN_FACTOR = 2.0
 _MARGIN_CELLS = 2  # source cells of margin around the requested bounds
 _GROW = 0.10  # a lazy re-bind grows the requested box by this fraction per side
 _MAX_CELLS = 16_000_000  # the bound raster's cell size grows beyond this many cells
@@ -117,10 +123,14 @@ class RasterMean(OffsetScaleMean):
         ``"fit"`` (default): ``a + b * DEM(x)``, the vertical datum offset ``a`` (m) and the
         scale ``b`` estimated by the GP (generalised least squares) or :meth:`fit` (least
         squares). ``"none"``: the DEM as is. A number: the DEM plus that many metres.
-    cells : tuple of int, optional
+    cells : tuple of int, "auto" or None
         ``(ny, nx)``: the paper's coarse prior — the bound DEM block-averaged into this many
         cells over the first bound bounds (:func:`~terrain.prior.coarse_dem`) and
         interpolated by :class:`~terrain.prior.TriangulatedMean` (defined on all of R^2).
+        ``"auto"``: the paper's :data:`PAPER_CELLS` unless the DEM's own cells are at least
+        :data:`AUTO_OWN_FACTOR` times finer than those over the first bound bounds, then
+        the DEM's own (decided at the first bind; ``cells`` then holds the choice).
+        ``None`` (default): the DEM's own cells.
     crs : CRS-like, optional
         The map CRS (projected, metres), when known up front; else fixed by the first bind.
     nodata : float, optional
@@ -163,6 +173,9 @@ class RasterMean(OffsetScaleMean):
             )
         self.resampling = resampling
         self.offset = parse_offset(offset)
+        self.cells_auto = isinstance(cells, str) and cells == "auto"
+        if self.cells_auto:
+            cells = None  # resolved at the first bind (:meth:`_resolve_auto_cells`)
         if cells is not None:
             try:
                 cy, cx = (int(c) for c in cells)
@@ -238,6 +251,8 @@ class RasterMean(OffsetScaleMean):
         self._check_covered(to_src, requested, footprint, crs)
         lattice = old.lattice if old else _lattice(src, crs, to_src, to_map, requested)
         ox, oy, rx, ry = lattice
+        if old is None and self.cells_auto:
+            self._resolve_auto_cells(requested, max(rx, ry))
         if self.cells is not None and old is not None:  # coarse cells stay put
             return _Bound(**{**old.__dict__, "requested": requested})
         if self.cells is not None:
@@ -280,6 +295,13 @@ class RasterMean(OffsetScaleMean):
                 (grid.y[::-1], grid.x), values[::-1], method="linear", bounds_error=False
             )
         return bound
+
+    def _resolve_auto_cells(self, requested: tuple, own_m: float) -> None:
+        """``cells="auto"``: the paper's cells over ``requested`` unless the DEM's own cells
+        (``own_m``, m on the map lattice) are :data:`AUTO_OWN_FACTOR` times finer."""
+        w, s, e, n = requested
+        coarse = max((e - w) / PAPER_CELLS[1], (n - s) / PAPER_CELLS[0])
+        self.cells = PAPER_CELLS if coarse < AUTO_OWN_FACTOR * own_m else None
 
     def _dem_array(self, grid: Grid, values: np.ndarray) -> Any:
         return grid.data_array(values, "elevation", source=self.source.label)
@@ -404,6 +426,7 @@ class RasterMean(OffsetScaleMean):
             "resampling": self.resampling,
             "offset": self.offset,
             "cells": None if self.cells is None else list(self.cells),
+            "cells_rule": "auto" if self.cells_auto else "given",
             "map_crs": None if self.crs is None else self.crs.to_string(),
         }
         if bound is not None:

@@ -38,3 +38,40 @@ def test_prior_coarsening_note(cell_m, map_m, cells, noted):
         assert f"{coarse:.0f} m" in note and coarse >= PRIOR_COARSENING_NOTE * cell_m
     assert prior_coarsening_note("constant") is None
     np.testing.assert_equal(mean.cells, cells)
+
+
+@pytest.mark.parametrize(
+    ("cell_m", "map_m", "resolved"),
+    [
+        (30.0, 3600.0, None),  # 450 m paper cells from a 30 m DEM: its own cells
+        (30.0, 600.0, None),  # a 30 m SRTM-like DEM over the 600 m site: 75 / 30 = 2.5 x
+        (75.0, 600.0, (8, 8)),  # the default site's 75 m prior: the paper's 8 x 8
+        (100.0, 600.0, (8, 8)),  # a DEM coarser than the paper's cells
+    ],
+)
+def test_auto_cells_take_the_dem_when_it_is_finer(cell_m, map_m, resolved):
+    """``cells="auto"`` (the pipeline's default ``[prior] cells``) resolves at the first
+    bind: the paper's 8 x 8 unless the DEM's own cells are >= 2 x finer."""
+    mean = RasterMean(_dem(cell_m), offset="none", cells="auto")
+    assert mean.cells is None and mean.cells_auto
+    grid = Grid.from_bounds((500_100.0, 6_800_100.0, 500_100.0 + map_m, 6_800_100.0 + map_m), 20.0)
+    mean.for_grid(grid)
+    assert mean.cells == resolved
+    assert mean.describe()["cells_rule"] == "auto"
+    assert prior_coarsening_note(mean) is None  # auto never throws the DEM away
+
+
+def test_prior_cells_setting():
+    from terrain import InputError
+    from toolkit.config import load_scenario
+    from toolkit.processing import prior_mean
+
+    assert load_scenario()["prior"]["cells"] == "auto"
+    dem = _dem(75.0)
+    assert prior_mean(dem, load_scenario()).cells_auto
+    paper = prior_mean(dem, load_scenario(overrides={"prior": {"cells": [8, 8]}}))
+    assert paper.cells == (8, 8) and not paper.cells_auto
+    own = prior_mean(dem, load_scenario(overrides={"prior": {"cells": []}}))
+    assert own.cells is None and not own.cells_auto
+    with pytest.raises(InputError, match="prior.cells"):
+        load_scenario(overrides={"prior": {"cells": "paper"}})

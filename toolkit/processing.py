@@ -140,7 +140,8 @@ def ingest(log: Any, crs: Any = None) -> tuple[MeasurementLog, dict[str, Any]]:
 
 def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
     """The GP prior mean: ``RasterMean(prior)`` (a + b * DEM fitted by GLS) with the
-    ``[prior]`` settings (``cells``: the paper's triangulated coarse mean; ``resampling``), or
+    ``[prior]`` settings (``cells``: ``"auto"``, the paper's triangulated 8 x 8 mean unless
+    the DEM is at least twice finer, ``[ny, nx]`` or ``[]`` for its own; ``resampling``), or
     a constant mean when no prior is given. A DEM read from a file is labelled by its file
     name (its ``repr`` and the products' ``mean_function``), not its absolute path."""
     if prior is None:
@@ -155,7 +156,9 @@ def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
             "check the path",
         )
     cfg = settings.get("prior", {})
-    cells = tuple(int(c) for c in cfg.get("cells", [])) or None
+    cells = cfg.get("cells", "auto")
+    if not (isinstance(cells, str) and cells == "auto"):  # a list: [8, 8], or [] (own cells)
+        cells = tuple(int(c) for c in cells) or None
     mean = RasterMean(prior, resampling=cfg.get("resampling", "bilinear"), cells=cells)
     return _named_by_file(mean)
 
