@@ -85,7 +85,7 @@ def se_sum_inside_gaps(name: str, kernel: Any, widest_gap: float | None) -> bool
     no longer than the widest gap reverts to that part's full variance inside the gaps, so
     the guard is not needed, and the Matern it would pick was the rougher model: 68 % bands
     of 76-79 % at 3k and 50k. Measured on eleven real DEMs (docs/terrain.md "Near ties
-    revisited"): SE + SE fits with short scales of 10-15 m covered 66-76 % / 93-96 %. The
+    revisited"): SE + SE fits with short scales of 8-15 m covered 67-76 % / 92-96 %. The
     over-confident ones (glacier, bei: 86 % and 75 % at 95) had short scales of 38-56 m,
     beyond the 30 m widest gap of 3,000 samples. A single SE always takes the guard.
     """
