@@ -34,6 +34,14 @@ from .errors import NotFittedError, bad_input
 from .grid import Grid, as_crs, check_same_crs
 from .linear_mean import OffsetScaleMean, check_xy, check_z, coefficient_table, parse_offset
 from .prior import TriangulatedMean, coarse_dem
+from .raster_boxes import bbox as _bbox
+from .raster_boxes import box as _box
+from .raster_boxes import fmt_box as _fmt
+from .raster_boxes import inside as _inside
+from .raster_boxes import lattice as _lattice
+from .raster_boxes import ring as _ring
+from .raster_boxes import transform_box as _transform_box
+from .raster_boxes import union as _union
 from .raster_source import RasterSource, nodata_under, open_source, sample_pixels
 
 __all__ = ["AUTO_OWN_FACTOR", "PAPER_CELLS", "RESAMPLING", "RasterMean", "gdal_average"]
@@ -50,30 +58,6 @@ AUTO_OWN_FACTOR = 2.0
 _MARGIN_CELLS = 2  # source cells of margin around the requested bounds
 _GROW = 0.10  # a lazy re-bind grows the requested box by this fraction per side
 _MAX_CELLS = 16_000_000  # the bound raster's cell size grows beyond this many cells
-_DENSIFY = 21  # points per side when transforming a box between CRSs
-
-
-def _box(bounds: Any, field: str = "bounds") -> tuple[float, float, float, float]:
-    try:
-        w, s, e, n = (float(b) for b in bounds)
-    except (TypeError, ValueError) as exc:
-        raise bad_input(field, bounds, "(west, south, east, north) in metres", "") from exc
-    if not (np.all(np.isfinite([w, s, e, n])) and e >= w and n >= s):
-        raise bad_input(field, bounds, "finite (west, south, east, north), east >= west", "")
-    return (w, s, e, n)
-
-
-def _ring(bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """Points along the edges of ``bounds``, for transforming a box between CRSs."""
-    w, s, e, n = bounds
-    t = np.linspace(0.0, 1.0, _DENSIFY)
-    xs = np.concatenate([w + (e - w) * t, np.full_like(t, e), e - (e - w) * t, np.full_like(t, w)])
-    ys = np.concatenate([np.full_like(t, s), s + (n - s) * t, np.full_like(t, n), n - (n - s) * t])
-    return xs, ys
-
-
-def _fmt(b: tuple[float, ...]) -> str:
-    return "(" + ", ".join(f"{v:.6g}" if abs(v) < 1e3 else f"{v:.1f}" for v in b) + ")"
 
 
 @dataclass
@@ -476,42 +460,3 @@ def gdal_average(values: np.ndarray, transform: Any, crs: CRS, grid: Grid) -> np
         resampling=Resampling.average,
     )
     return out
-
-
-def _bbox(xy: np.ndarray) -> tuple[float, float, float, float]:
-    return (xy[:, 0].min(), xy[:, 1].min(), xy[:, 0].max(), xy[:, 1].max())
-
-
-def _union(a: tuple, b: tuple) -> tuple[float, float, float, float]:
-    return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
-
-
-def _inside(a: tuple, b: tuple) -> bool:
-    return a[0] >= b[0] and a[1] >= b[1] and a[2] <= b[2] and a[3] <= b[3]
-
-
-def _transform_box(tr: Transformer, bounds: tuple) -> tuple[float, float, float, float]:
-    xs, ys = tr.transform(*_ring(bounds))
-    ok = np.isfinite(xs) & np.isfinite(ys)
-    return (float(xs[ok].min()), float(ys[ok].min()), float(xs[ok].max()), float(ys[ok].max()))
-
-
-def _lattice(
-    src: RasterSource, crs: CRS, to_src: Transformer, to_map: Transformer, requested: tuple
-) -> tuple[float, float, float, float]:
-    """Origin and steps ``(ox, oy, rx, ry)`` (m) of the map lattice.
-
-    In the source's own CRS, the source's cells (so the bound raster is the source itself and
-    queries are one bilinear step on it); otherwise square cells of one source cell in map
-    metres at the centre of ``requested`` (the smaller side), anchored at (0, 0).
-    """
-    t = src.transform
-    if src.crs.equals(crs):
-        return (t.c, t.f, abs(t.a), abs(t.e))
-    cx, cy = to_src.transform((requested[0] + requested[2]) / 2, (requested[1] + requested[3]) / 2)
-    dx, dy = src.resolution
-    xs, ys = to_map.transform([cx, cx + dx, cx], [cy, cy, cy + dy])
-    res = min(math.hypot(xs[1] - xs[0], ys[1] - ys[0]), math.hypot(xs[2] - xs[0], ys[2] - ys[0]))
-    if not (np.isfinite(res) and res > 0):
-        raise bad_input("source.transform", (dx, dy), "a positive cell size", "check the DEM")
-    return (0.0, 0.0, float(res), float(res))
