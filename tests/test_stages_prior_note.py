@@ -75,3 +75,20 @@ def test_prior_cells_setting():
     assert own.cells is None and not own.cells_auto
     with pytest.raises(InputError, match="prior.cells"):
         load_scenario(overrides={"prior": {"cells": "paper"}})
+
+
+def test_printed_warnings_keep_bracketed_table_names():
+    """Rich markup used to eat "[prior]" from printed warnings (" cells = []")."""
+    from rich.console import Console
+
+    from toolkit.cli._progress import print_warnings
+
+    console = Console(width=200)
+    cert = {
+        "warnings": ["set [prior] cells = [] to use the DEM's own resolution"],
+        "heldout_calibration": {"verdict": ["see [certify] heldout_folds"]},
+    }
+    with console.capture() as cap:
+        print_warnings(console, cert)
+    out = cap.get()
+    assert "set [prior] cells = []" in out and "see [certify] heldout_folds" in out

@@ -9,6 +9,7 @@ from typing import Annotated
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from terrain.atomic import atomic_path, ensure_writable_dir
@@ -148,18 +149,18 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
     settings = load_scenario(config, {"seed": seed})
     table = read_samples(samples, crs)
     if table.note:
-        console.print(f"[yellow]note:[/] {table.note}")
+        console.print(f"[yellow]note:[/] {escape(str(table.note))}")
     if like is not None:  # the raster's own cells; samples projected into its CRS if need be
         grid, table, moved = grid_like(like, table)
         if moved:
-            console.print(f"[yellow]note:[/] {moved}")
+            console.print(f"[yellow]note:[/] {escape(str(moved))}")
         data = table.samples
     else:
         data = table.samples
         grid = map_grid(bounds, resolution, data.crs, data)
     footprint = _footprint_note(data, grid)
     if footprint:  # said before the fit: a big map of few samples is long to wait for
-        console.print(f"[yellow]warning:[/] {footprint}")
+        console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):
@@ -175,7 +176,7 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
             )
     for w in caught:
         if issubclass(w.category, DegenerateFitWarning):
-            console.print(f"[yellow]warning (degenerate fit):[/] {w.message}")
+            console.print(f"[yellow]warning (degenerate fit):[/] {escape(str(w.message))}")
     reverted = _reverted_fraction(rec)
     if reverted > 0.5 and prior is not None:  # by design: the DEM fills the gaps
         console.print(

@@ -8,6 +8,7 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from terrain.errors import bad_input
 
@@ -74,7 +75,7 @@ def _sample_points(path: Path) -> dict[str, Any]:
     try:
         table = read_checkpoints(path)
     except InputError as exc:
-        console.print(f"[yellow]note:[/] {path.name} not drawn: {exc}", soft_wrap=True)
+        console.print(f"[yellow]note:[/] {path.name} not drawn: {escape(str(exc))}", soft_wrap=True)
         return {}
     if table.crs is not None and table.crs.is_geographic:
         console.print(f"[yellow]note:[/] {path.name} not drawn: lon/lat, not the map's CRS")
