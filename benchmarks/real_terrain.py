@@ -5,8 +5,8 @@
     python benchmarks/real_terrain.py --quick                               # olinda, n=3000
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
-prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei and R's volcano — mapped
-onto 600 m x 600 m at 2 m, 25 m relief); samples: ``track_samples`` (8 rover tracks + 10 %
+prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
+volcano — mapped onto 600 m x 600 m at 2 m, 25 m relief); samples: ``track_samples`` (8 rover tracks + 10 %
 scattered, noise sd 0.2 m stated, seed 0). Every method maps the truth's 300 x 300 cells
 from the same samples, each in its own process (wall time and peak RSS are its own; one at a
 time: 2 cores):
@@ -46,7 +46,19 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "scripts"))
 from _harness import table, write_json  # noqa: E402
 
-SITES = ("olinda", "rm", "glacier", "prism", "lux", "jacksboro", "topobathy", "bei", "volcano")
+SITES = (
+    "olinda",
+    "rm",
+    "glacier",
+    "prism",
+    "lux",
+    "jacksboro",
+    "topobathy",
+    "bei",
+    "volcano",
+    "gorillas",
+    "clm",
+)
 SIZES = (3000, 50_000)
 METHODS = (
     "delaunay",
