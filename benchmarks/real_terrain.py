@@ -6,10 +6,10 @@
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
-volcano — mapped onto 600 m x 600 m at 2 m, 25 m relief); samples: ``track_samples`` (8 rover tracks + 10 %
-scattered, noise sd 0.2 m stated, seed 0). Every method maps the truth's 300 x 300 cells
-from the same samples, each in its own process (wall time and peak RSS are its own; one at a
-time: 2 cores):
+volcano — mapped onto 600 m x 600 m at 2 m, 25 m relief); samples: ``track_samples`` (8
+rover tracks + 10 % scattered, noise sd 0.2 m stated, seed 0). Every method maps the
+truth's 300 x 300 cells from the same samples, each in its own process (wall time and peak
+RSS are its own; one at a time: 2 cores):
 
 ``delaunay``      ``terrain.delaunay_linear`` — the reference: RMSEs are on its hull.
 ``glacimap``      ``terrain.TerrainGP(seed=0)``, the default estimator (constant mean).
