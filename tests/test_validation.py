@@ -380,3 +380,28 @@ def test_extra_variance_is_map_variance_from_the_training_folds(draw):
         assert var_f.shape == (test.sum(),) and (var_f > 0).all()
     # a larger stated map variance reads as a map 1-sigma that covers more
     assert more.pooled["map_coverage_68"] >= plain.pooled["map_coverage_68"]
+
+
+def test_residuals_within_the_noise_make_too_large_a_weak_reading():
+    """Held-out residuals no larger than the samples' stated noise censor the map's error
+    variance at 0 (``variance_ratio`` 0): the map-level coverage then reads full whatever
+    the 1-sigma (a 600 m window of the clm DEM: 100 % at 68, truth 65.5 %), so a "too
+    large" reading is a weak estimate; a positive ratio keeps the verdict."""
+    from terrain.heldout_verdict import coverage_verdict
+
+    full = {
+        "map_coverage_68": 1.0,
+        "map_coverage_68_interval": [1.0, 1.0],
+        "map_coverage_95": 1.0,
+        "map_coverage_95_interval": [1.0, 1.0],
+        "noise_share": 0.48,
+        "along_track_shared": 0.4,
+    }
+    weak = coverage_verdict({**full, "variance_ratio": 0.0})
+    assert len(weak) == 2 and all("too weak an estimate" in w for w in weak)
+    assert "no larger than the samples' stated noise" in weak[0]
+    verdicts = coverage_verdict({**full, "variance_ratio": 0.2})
+    assert len(verdicts) == 2 and all(v.endswith("1-sigma is too large") for v in verdicts)
+    low = {**full, "map_coverage_68": 0.5, "map_coverage_68_interval": [0.45, 0.55]}
+    (still,) = coverage_verdict({**low, "variance_ratio": 0.0})[:1]
+    assert still.endswith("the map's 1-sigma is too small")
