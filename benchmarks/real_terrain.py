@@ -45,20 +45,9 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "scripts"))
 from _harness import table, write_json  # noqa: E402
+from real_dems import NAMES  # noqa: E402
 
-SITES = (
-    "olinda",
-    "rm",
-    "glacier",
-    "prism",
-    "lux",
-    "jacksboro",
-    "topobathy",
-    "bei",
-    "volcano",
-    "gorillas",
-    "clm",
-)
+SITES = NAMES  # every real DEM of scripts/real_dems.py
 SIZES = (3000, 50_000)
 METHODS = (
     "delaunay",

@@ -46,20 +46,9 @@ for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
         sys.path.insert(0, str(p))
 
 from _harness import in_subprocess, table, write_json  # noqa: E402
+from real_dems import NAMES  # noqa: E402
 
-DEMS = (
-    "olinda",
-    "rm",
-    "prism",
-    "lux",
-    "glacier",
-    "jacksboro",
-    "topobathy",
-    "bei",
-    "volcano",
-    "gorillas",
-    "clm",
-)
+DEMS = NAMES  # every real DEM of scripts/real_dems.py
 NODATA = -9999.0
 
 

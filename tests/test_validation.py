@@ -293,6 +293,18 @@ def test_a_noise_dominated_miss_is_called_weak_not_a_verdict():
     assert len(coverage_verdict(far_off)) == 1
 
 
+def _pooled(c68: tuple, c95: tuple, noise_share: float) -> dict:
+    """Pooled held-out scores for :func:`coverage_verdict`: (coverage, interval) at 68 and
+    95 % and the noise share."""
+    return {
+        "map_coverage_68": c68[0],
+        "map_coverage_68_interval": c68[1],
+        "map_coverage_95": c95[0],
+        "map_coverage_95_interval": c95[1],
+        "noise_share": noise_share,
+    }
+
+
 def test_shared_along_track_error_makes_too_large_a_weak_reading():
     """A held-out sample seen seconds from its training neighbours shares their along-track
     error, which cancels in the residual: a 1-sigma read as too large is then no verdict
@@ -300,14 +312,8 @@ def test_shared_along_track_error_makes_too_large_a_weak_reading():
     too small still is (cancellation only shrinks residuals)."""
     from terrain.heldout_verdict import ALONG_TRACK_SHARED_WEAK, coverage_verdict
 
-    high = {
-        "map_coverage_68": 0.936,
-        "map_coverage_68_interval": [0.81, 1.0],
-        "map_coverage_95": 0.95,
-        "map_coverage_95_interval": [0.94, 0.96],
-        "noise_share": 0.6,
-        "heldout_dt_median_s": 2.0,
-    }
+    high = _pooled((0.936, [0.81, 1.0]), (0.95, [0.94, 0.96]), noise_share=0.6)
+    high["heldout_dt_median_s"] = 2.0
     assert ALONG_TRACK_SHARED_WEAK == 0.5
     (verdict,) = coverage_verdict({**high, "along_track_shared": 0.3})
     assert verdict.endswith("the map's 1-sigma is too large")
@@ -389,14 +395,8 @@ def test_residuals_within_the_noise_make_too_large_a_weak_reading():
     large" reading is a weak estimate; a positive ratio keeps the verdict."""
     from terrain.heldout_verdict import coverage_verdict
 
-    full = {
-        "map_coverage_68": 1.0,
-        "map_coverage_68_interval": [1.0, 1.0],
-        "map_coverage_95": 1.0,
-        "map_coverage_95_interval": [1.0, 1.0],
-        "noise_share": 0.48,
-        "along_track_shared": 0.4,
-    }
+    full = _pooled((1.0, [1.0, 1.0]), (1.0, [1.0, 1.0]), noise_share=0.48)
+    full["along_track_shared"] = 0.4
     weak = coverage_verdict({**full, "variance_ratio": 0.0})
     assert len(weak) == 2 and all("too weak an estimate" in w for w in weak)
     assert "no larger than the samples' stated noise" in weak[0]
