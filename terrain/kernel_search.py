@@ -35,6 +35,7 @@ from threadpoolctl import threadpool_limits
 
 from .errors import DegenerateFitWarning, InputError, NumericalError, bad_input
 from .kernels import Matern, SquaredExponential
+from .tiled import shortest_lengthscale
 from .vecchia import VecchiaPlan, nearest_neighbour_predict, vecchia_lml
 
 __all__ = [
@@ -91,8 +92,6 @@ def se_sum_inside_gaps(name: str, kernel: Any, widest_gap: float | None) -> bool
     """
     if widest_gap is None or name != "se+se":
         return False
-    from .tiled import shortest_lengthscale
-
     return shortest_lengthscale(kernel) <= float(widest_gap)
 
 

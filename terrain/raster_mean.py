@@ -283,9 +283,17 @@ class RasterMean(OffsetScaleMean):
     def _resolve_auto_cells(self, requested: tuple, own_m: float) -> None:
         """``cells="auto"``: the paper's cells over ``requested`` unless the DEM's own cells
         (``own_m``, m on the map lattice) are :data:`AUTO_OWN_FACTOR` times finer."""
-        w, s, e, n = requested
-        coarse = max((e - w) / PAPER_CELLS[1], (n - s) / PAPER_CELLS[0])
-        self.cells = PAPER_CELLS if coarse < AUTO_OWN_FACTOR * own_m else None
+        fine = _coarse_cell_m(requested, PAPER_CELLS) >= AUTO_OWN_FACTOR * own_m
+        self.cells = None if fine else PAPER_CELLS
+
+    def coarse_and_own_cell_m(self) -> tuple[float, float] | None:
+        """``(coarse, own)``: the side (m) of the ``cells`` the bound DEM is averaged into,
+        over the first bound area, and of the DEM's own cells on the map lattice; ``None``
+        when not bound or without ``cells`` (the DEM's own cells are used)."""
+        bound = self._shared.bound
+        if bound is None or self.cells is None:
+            return None
+        return _coarse_cell_m(bound.requested, self.cells), max(bound.lattice[2:])
 
     def _dem_array(self, grid: Grid, values: np.ndarray) -> Any:
         return grid.data_array(values, "elevation", source=self.source.label)
@@ -440,6 +448,12 @@ class RasterMean(OffsetScaleMean):
         out = object.__new__(RasterMean)
         out.__dict__.update(self.__dict__)  # shares the source and the bound raster
         return out
+
+
+def _coarse_cell_m(requested: tuple, cells: tuple[int, int]) -> float:
+    """Side (m) of the larger of ``cells`` (ny, nx) laid over ``requested`` (w, s, e, n)."""
+    w, s, e, n = requested
+    return max((e - w) / cells[1], (n - s) / cells[0])
 
 
 def gdal_average(values: np.ndarray, transform: Any, crs: CRS, grid: Grid) -> np.ndarray:

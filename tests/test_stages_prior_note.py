@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from terrain import Grid, RasterMean
-from toolkit.stages import PRIOR_COARSENING_NOTE, prior_coarsening_note
+from terrain.raster_mean import AUTO_OWN_FACTOR
+from toolkit.stages import prior_coarsening_note
 
 
 def _dem(cell_m: float, side_m: float = 4000.0):
@@ -35,7 +36,7 @@ def test_prior_coarsening_note(cell_m, map_m, cells, noted):
     if noted:
         assert f"{cell_m:.0f} m cells" in note and "[prior] cells = []" in note
         coarse = map_m / 8
-        assert f"{coarse:.0f} m" in note and coarse >= PRIOR_COARSENING_NOTE * cell_m
+        assert f"{coarse:.0f} m" in note and coarse >= AUTO_OWN_FACTOR * cell_m
     assert prior_coarsening_note("constant") is None
     np.testing.assert_equal(mean.cells, cells)
 

@@ -196,7 +196,7 @@ def inflate_std(
     prior = gp.kernel_.diag(q)
     post = product["elevation_std"].values.ravel() ** 2
     w = lean_weight(post, prior)
-    track = along_track_variance(q, post, prior, landmark_xy, relative_z_std, k, landmark_t_s)
+    track = w * correlated_variance(q, landmark_xy, relative_z_std, k, landmark_t_s)
     if shared_xy_std is not None:  # a sideways shift of the map, through the slope
         gy, gx = np.gradient(product["elevation"].values, product["y"].values, product["x"].values)
         sx, sy = (float(v) for v in shared_xy_std)

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -81,8 +82,6 @@ def _label(crs: CRS) -> str:
     """``EPSG:n`` when the CRS has a code, else its PROJ string when short, else its name
     (a WKT is too long to print), or its PROJ form when the name is ``unknown`` (a local
     transverse Mercator read from a GeoTIFF's WKT)."""
-    import warnings
-
     code = crs.to_epsg()
     text = crs.to_string()
     if code:

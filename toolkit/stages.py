@@ -243,27 +243,19 @@ def reconstruct_stage(
     return Reconstruction(product=product, gp=gp, samples=samples, heldout=heldout)
 
 
-#: A prior DEM averaged into coarse cells this many times its own cell is noted.
-PRIOR_COARSENING_NOTE = 2.0
-
-
 def prior_coarsening_note(mean: Any) -> str | None:
-    """A note when a bound :class:`terrain.RasterMean` with ``cells`` (the paper's coarse
-    8 x 8 satellite prior) averages a DEM whose own cells are at least
-    :data:`PRIOR_COARSENING_NOTE` times finer: its resolution is thrown away (e.g. a 30 m
-    DEM over a 3.7 km map: 460 m cells). ``None`` otherwise (the default site: a 75 m prior
-    into 8 x 8 cells of 75 m)."""
-    if getattr(mean, "cells", None) is None or not hasattr(mean, "describe"):
+    """A note when a bound :class:`terrain.RasterMean` with ``cells`` given (e.g. the
+    paper's coarse 8 x 8) averages a DEM whose own cells are at least
+    :data:`terrain.raster_mean.AUTO_OWN_FACTOR` times finer: its resolution is thrown away
+    (a 31 m DEM over a 3.7 km map: 472 m cells), where ``cells="auto"`` would have kept it.
+    ``None`` otherwise (the default site: a 75 m prior into 8 x 8 cells of 75 m)."""
+    from terrain.raster_mean import AUTO_OWN_FACTOR
+
+    sizes = mean.coarse_and_own_cell_m() if hasattr(mean, "coarse_and_own_cell_m") else None
+    if sizes is None or sizes[0] < AUTO_OWN_FACTOR * sizes[1]:
         return None
-    info = mean.describe()
-    if "requested_bounds" not in info:
-        return None
-    w, s, e, n = info["requested_bounds"]
+    coarse, own = sizes
     ny, nx = mean.cells
-    coarse = max((e - w) / nx, (n - s) / ny)
-    own = max(info["resolution_m"])
-    if coarse < PRIOR_COARSENING_NOTE * own:
-        return None
     return (
         f"the prior DEM's {own:.0f} m cells are averaged into {ny} x {nx} cells of "
         f"{coarse:.0f} m over this map (the paper's coarse satellite prior, [prior] cells); "
