@@ -115,3 +115,64 @@ def test_long_image_plan_states_its_cost_and_warns(monkeypatch, tmp_path):
         frames = int(length_m / 2.0)
         assert f"{frames} frames to render and track: about" in out
         assert ("warning" in out and "[site] bounds" in out) == warned
+
+
+@pytest.fixture(scope="module")
+def field_chain(tmp_path_factory):
+    """A rover's field folder with camera frames (``--format field --camera images``)."""
+    root = tmp_path_factory.mktemp("vision_field")
+    _ok(["plan", "--swaths", "1", "--bounds", *BOUNDS, "--out", root / "plan"])
+    plan = root / "plan" / "plan.json"
+    _ok(
+        ["simulate", "--plan", plan, "--out", root / "field", "--camera", "images"]
+        + ["--format", "field"]
+    )
+    return root
+
+
+def _elevation(folder):
+    import rasterio
+
+    with rasterio.open(folder / "elevation.tif") as src:
+        return src.read(1)
+
+
+@pytest.mark.slow  # renders and tracks 26 frames, processes 3 times: ~40 s here
+def test_process_tracks_a_field_folders_frames_like_its_tracks_table(field_chain, tmp_path):
+    """``glacimap process`` on a field folder with images/ runs the front-end (reusing the
+    tracks stored beside the frames: the camera read back from camera.yaml and the odometry
+    from odometry.csv hash as those tracked), says so in the certificate, and gives the map
+    that the folder's tracks.csv gives (``--no-images``) and that the frames alone give."""
+    import shutil
+
+    field = field_chain / "field"
+    assert (field / "images" / "timestamps.csv").is_file() and (field / "tracks.csv").is_file()
+    _ok(["process", field, "--out", tmp_path / "img"])
+    cert = json.loads((tmp_path / "img" / "certificate.json").read_text())
+    fe = cert["ingest"]["front_end"]
+    assert fe["source"].startswith("reused images/") and fe["tracks"] > 50
+    assert cert["ingest"]["tracks"] == "front-end on images/" and fe["frames_skipped"] == {}
+    _ok(["process", field, "--no-images", "--out", tmp_path / "table"])
+    cert_t = json.loads((tmp_path / "table" / "certificate.json").read_text())
+    assert cert_t["ingest"]["tracks"] == "tracks.csv" and not cert_t["ingest"]["front_end"]
+    np.testing.assert_array_equal(_elevation(tmp_path / "img"), _elevation(tmp_path / "table"))
+    # what a rover brings home: frames, no tracks table
+    only = tmp_path / "frames_only"
+    shutil.copytree(field, only)
+    (only / "tracks.csv").unlink()
+    _ok(["process", only, "--out", tmp_path / "only"])
+    np.testing.assert_array_equal(_elevation(tmp_path / "img"), _elevation(tmp_path / "only"))
+    res = runner.invoke(app, ["process", str(only), "--no-images", "--out", str(tmp_path / "x")])
+    assert isinstance(res.exception, InputError)
+    assert "tracks" in str(res.exception) and "--no-images" in str(res.exception)
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.slow  # renders and tracks 26 frames: ~15 s here
+def test_localize_on_a_field_folder_tracks_its_frames_once(field_chain, tmp_path):
+    res = _ok(["localize", field_chain / "field", "--out", tmp_path / "loc"])
+    out = " ".join(res.output.split())
+    assert out.count("front-end on images") == 1 and "front-end rejections:" in out
+    summary = json.loads((tmp_path / "loc" / "localize_summary.json").read_text())
+    assert summary["front_end"]["source"].startswith("reused")
+    assert summary["selection_counts"]["in_graph"] > 0

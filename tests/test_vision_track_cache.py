@@ -81,6 +81,26 @@ def test_any_changed_input_changes_the_digest(run, tmp_path):
     assert len({base, *changed}) == 1 + len(changed)
 
 
+def test_a_camera_read_back_from_camera_yaml_hashes_as_the_one_tracked(run, tmp_path):
+    """The field folder's camera.yaml gives the same camera with float numbers (640.0 for
+    640): the stored tracks must still be found (the field route reuses them)."""
+    from factorgraph.field.intrinsics import read_camera, write_camera
+
+    r, root = run
+    log = read_log(root / "log")
+    cam = log.sensors.camera
+    frames = read_frames(root / "images", log.t, cam)
+    write_camera(tmp_path / "camera.yaml", cam)
+    back, dist = read_camera(tmp_path / "camera.yaml", cam)
+    assert dist is None
+    as_floats = dataclasses.replace(
+        cam, **{f.name: float(getattr(cam, f.name)) for f in dataclasses.fields(cam)}
+    )
+    base = inputs_digest(frames, cam, TrackParams(), log.odometry)
+    assert inputs_digest(frames, back, TrackParams(), log.odometry) == base
+    assert inputs_digest(frames, as_floats, TrackParams(), log.odometry) == base
+
+
 def test_a_changed_frame_or_a_broken_file_is_tracked_again(run, tmp_path):
     import shutil
 

@@ -113,11 +113,14 @@ class ProcessResult:
         notify(name, "done")
 
 
-def ingest(log: Any, crs: Any = None) -> tuple[MeasurementLog, dict[str, Any]]:
+def ingest(log: Any, crs: Any = None, images: bool = True) -> tuple[MeasurementLog, dict[str, Any]]:
     """A measurement log from a :class:`MeasurementLog`, a ``glacimap-log/1`` folder
     (``meta.json``) or a rover's field folder (``survey.json``, docs/field-format.md).
 
-    Returns the log and the ingest report (what was read, what was skipped and why)."""
+    A folder with camera frames (``images/``: PNG + ``timestamps.csv``) gets its feature
+    tracks from the OpenCV front-end (:func:`factorgraph.vision.track_log_frames`) unless
+    ``images`` is False. Returns the log and the ingest report (what was read, what was
+    skipped and why; ``front_end``: what the front-end did)."""
     from factorgraph.field import read_field_log
     from factorgraph.log import read_log
 
@@ -125,11 +128,16 @@ def ingest(log: Any, crs: Any = None) -> tuple[MeasurementLog, dict[str, Any]]:
         return log, dict(getattr(log, "ingest", None) or {})
     folder = Path(log)
     if (folder / "survey.json").is_file():
-        mlog, report = read_field_log(folder, crs=crs)
+        mlog, report = read_field_log(folder, crs=crs, images=images)
         return mlog, report.as_dict()
     if (folder / "meta.json").is_file():
         mlog = read_log(folder)
-        return mlog, {"format": "glacimap-log/1", **dict(mlog.ingest or {})}
+        report = {"format": "glacimap-log/1", **dict(mlog.ingest or {})}
+        if images and (folder / "images").is_dir():
+            from factorgraph.vision import track_log_frames
+
+            mlog, report["front_end"] = track_log_frames(mlog, folder / "images")
+        return mlog, report
     raise bad_input(
         "LOG_DIR",
         str(folder),
@@ -202,6 +210,7 @@ def process(
     on_progress: Callable[[int, int], None] | None = None,
     truth: Any = None,
     truth_path: Any = None,
+    images: bool = True,
 ) -> ProcessResult:
     """Process a survey into certified products in ``out``.
 
@@ -229,6 +238,9 @@ def process(
     truth, truth_path : xarray.DataArray, ndarray of shape (n, 3), optional
         Simulation only: the report's error map and the true path layer. Nothing else reads
         them.
+    images : bool
+        When the log folder has camera frames (``images/``), track them with the OpenCV
+        front-end and use those tracks (default); False: the folder's tracks table.
 
     Returns
     -------
@@ -241,13 +253,13 @@ def process(
     with output_folder(out) as folder:
         return _process(
             log, prior, control, checkpoints, settings, folder, bounds, on_stage, on_progress,
-            truth, truth_path,
+            truth, truth_path, images,
         )  # fmt: skip
 
 
 def _process(
     log, prior, control, checkpoints, settings, out, bounds, on_stage, on_progress, truth,
-    truth_path,
+    truth_path, images=True,
 ) -> ProcessResult:  # fmt: skip
     seed = int(settings["seed"])
     res = ProcessResult(out=out, settings=settings)
@@ -257,7 +269,7 @@ def _process(
         return res.stage(name, on_stage)
 
     with stage("ingest"):
-        mlog, ingest_report = ingest(log)
+        mlog, ingest_report = ingest(log, images=images)
         ctrl, cps = _control_and_checkpoints(control, checkpoints, mlog)
         mean = prior_mean(prior, settings)
         # which files made the map, by name and SHA-256 (every product's metadata)

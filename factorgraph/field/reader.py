@@ -40,8 +40,10 @@ MANIFEST = "survey.json"
 GPS_SUFFIXES = {".nmea": "nmea", ".nma": "nmea", ".gpx": "gpx", ".pos": "rtklib"}
 _KEYS = {
     "format", "crs", "origin", "seed", "clock_offset_s", "sync_tolerance_s", "lever_arm_m",
-    "gps", "odometry", "tilt", "tracks", "camera", "sensors", "stops",
+    "gps", "odometry", "tilt", "tracks", "camera", "sensors", "stops", "images",
 }  # fmt: skip
+#: The frames folder (PNG + ``timestamps.csv`` on the rover clock) when ``images`` is not named.
+IMAGES_DIR = "images"
 _GPS_KEYS = {"file", "format", "crs", "date", "sigma_by_quality"}
 
 
@@ -161,11 +163,45 @@ def _gaps(t: np.ndarray) -> dict[str, float]:
     }
 
 
+def _images_folder(folder: Path, man: dict[str, Any]) -> Path | None:
+    """The folder of camera frames: ``survey.json`` ``images``, else ``images/`` if present."""
+    if "images" in man:
+        path = folder / str(man["images"])
+        if not (path / "timestamps.csv").is_file():
+            raise bad_input(
+                f"{MANIFEST} images",
+                str(man["images"]),
+                "a folder with the frames and timestamps.csv (t_s on the rover clock, file)",
+                "check the name, or remove the key",
+            )
+        return path
+    path = folder / IMAGES_DIR
+    return path if path.is_dir() else None
+
+
+def _observations(folder, man, t_kf, tol, images_dir, rep):
+    """The feature observations of ``tracks.csv``; none yet when the front-end will track
+    ``images_dir`` instead (then a tracks table, if any, is not read)."""
+    name = man.get("tracks", "tracks.csv")
+    if images_dir is not None:
+        return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), {}
+    if not (folder / name).is_file():
+        fix = "add tracks.csv, or the camera frames with images/timestamps.csv"
+        if (folder / str(man.get("images", IMAGES_DIR))).is_dir():
+            fix = "track the frames in images/: drop --no-images (images=False)"
+        raise bad_input(
+            "tracks", str(folder / name), "a tracks table, or camera frames in images/", fix
+        )
+    rep.tracks = name
+    return read_tracks(folder / name, t_kf, tol)
+
+
 def read_field_log(
     folder: str | Path,
     crs: str | None = None,
     clock_offset_s: float | None = None,
     sync_tolerance_s: float | None = None,
+    images: bool = True,
 ) -> tuple[MeasurementLog, IngestReport]:
     """Read a field folder (docs/field-format.md) into a keyframe :class:`MeasurementLog`.
 
@@ -173,8 +209,9 @@ def read_field_log(
     ----------
     folder : path
         Folder with ``survey.json``, a GPS file (NMEA ``.nmea``, ``.gpx``, RTKLIB ``.pos``),
-        ``odometry.csv``, ``tracks.csv``, optional ``tilt.csv``, ``camera.yaml`` and
-        ``stops.csv`` (the keyframes the rover stood on ground-control points).
+        ``odometry.csv``, ``tracks.csv`` and/or ``images/`` (camera frames), optional
+        ``tilt.csv``, ``camera.yaml`` and ``stops.csv`` (the keyframes the rover stood on
+        ground-control points).
     crs : str, optional
         Projected map CRS (overrides ``survey.json`` ``crs``). The local frame is ENU metres
         from ``origin`` (``survey.json``, or the first fix rounded to the metre).
@@ -186,6 +223,11 @@ def read_field_log(
         ``survey.json`` ``sync_tolerance_s``, else half the median keyframe interval: every fix
         goes to its nearest keyframe). A fix ``dt`` from its keyframe keeps its position,
         its horizontal sigma widened (in quadrature) by the distance driven in ``dt``.
+    images : bool
+        When the folder has camera frames (``images/`` or ``survey.json`` ``images``), run
+        the OpenCV front-end on them (:func:`factorgraph.vision.track_log_frames`; the
+        tracks stored beside the frames are reused when their inputs match) and use its
+        tracks instead of ``tracks.csv``; False: ``tracks.csv`` (required then).
 
     Returns
     -------
@@ -291,7 +333,8 @@ def read_field_log(
     else:
         rep.camera = f"{MANIFEST} sensors.camera (no {cam_name})"
     sensors = replace(sensors, camera=camera)
-    obs_k, obs_id, obs_uv, tskip = read_tracks(folder / man.get("tracks", "tracks.csv"), t_kf, tol)
+    images_dir = _images_folder(folder, man) if images else None
+    obs_k, obs_id, obs_uv, tskip = _observations(folder, man, t_kf, tol, images_dir, rep)
     rep.tracks_skipped = dict(tskip)
     control_id = None
     stops_name = man.get("stops", STOPS_FILE)
@@ -326,4 +369,12 @@ def read_field_log(
         seed=man.get("seed"),
         ingest=rep.as_dict(),
     )
+    if images_dir is not None:  # the camera front-end on the frames (rover clock = t_kf)
+        from ..vision import track_log_frames
+
+        log, rep.front_end = track_log_frames(log, images_dir)
+        rep.tracks = f"front-end on {images_dir.name}/"
+        if dist is not None:
+            log = replace(log, obs_uv=undistort(log.obs_uv, camera, dist))
+        log = replace(log, ingest=rep.as_dict())
     return log, rep

@@ -39,8 +39,15 @@ class IngestReport:
         Largest gap between a fix and its keyframe.
     tilt : str
         ``used``, ``absent`` or ``not used: <reason>``.
+    tracks : str
+        Where the feature observations came from: ``tracks.csv``, or the camera front-end
+        on the folder's frames (``images/``).
     tracks_skipped : dict
         Feature observations not used, by reason.
+    front_end : dict
+        What the front-end did on ``images/`` (:func:`factorgraph.vision.track_log_frames`:
+        ``source``, ``tracks``, ``views_per_keyframe``, ``frames_skipped``, ``rejected``);
+        ``{}`` when the observations are ``tracks.csv``'s.
     camera : str
         Where the intrinsics came from, and whether tracks were undistorted.
     lever_arm_m : list of float
@@ -66,7 +73,9 @@ class IngestReport:
     clock_fit: dict[str, float] = field(default_factory=dict)
     sync_tolerance_s: float = 0.0
     tilt: str = "absent"
+    tracks: str = ""
     tracks_skipped: dict[str, int] = field(default_factory=dict)
+    front_end: dict[str, Any] = field(default_factory=dict)
     camera: str = ""
     lever_arm_m: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     stops: dict[str, Any] = field(default_factory=dict)
@@ -98,6 +107,15 @@ class IngestReport:
             g = self.gps_gaps
             out.append(f"  {g['count']:.0f} GPS gaps, longest {g['longest_s']:.1f} s")
         out += [f"  skipped {n} observations: {r}" for r, n in sorted(self.tracks_skipped.items())]
+        if self.front_end:
+            fe = self.front_end
+            out.append(
+                f"tracks from the front-end on {fe['folder']} ({fe['source']}): "
+                f"{fe['tracks']} tracks, {fe['views_per_keyframe']:.1f} views per keyframe"
+            )
+            out += [f"  skipped {n} frames: {r}" for r, n in sorted(fe["frames_skipped"].items())]
+            rejected = ", ".join(f"{r} {n}" for r, n in fe["rejected"].items() if n)
+            out.append(f"  front-end rejections: {rejected or 'none'}")
         out.append(f"tilt {self.tilt}; camera {self.camera}")
         if self.stops:
             st = self.stops

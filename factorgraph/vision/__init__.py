@@ -4,7 +4,14 @@ the chain that feeds its tracks to the factor graph (:mod:`.chain`). See docs/vi
 
 from .albedo import AlbedoParams, GlacierAlbedo
 from .camera_frames import ImageFolder, read_frames, write_frames
-from .chain import ImageRun, attach_tracks, simulate_images, track_truth, vision_sensors
+from .chain import (
+    ImageRun,
+    attach_tracks,
+    simulate_images,
+    track_log_frames,
+    track_truth,
+    vision_sensors,
+)
 from .render import SCENES, VISION_CAMERA, Renderer, Scene, camera_poses, render_frames
 from .tracking import FeatureTracks, TrackParams, predict_motion, track_features
 
@@ -26,6 +33,7 @@ __all__ = [
     "render_frames",
     "simulate_images",
     "track_features",
+    "track_log_frames",
     "track_truth",
     "vision_sensors",
     "write_frames",

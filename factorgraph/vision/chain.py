@@ -20,7 +20,14 @@ from .render import VISION_CAMERA, Renderer, Scene, render_frames
 from .track_cache import save_tracks
 from .tracking import FeatureTracks, TrackParams, track_features
 
-__all__ = ["ImageRun", "attach_tracks", "simulate_images", "track_truth", "vision_sensors"]
+__all__ = [
+    "ImageRun",
+    "attach_tracks",
+    "simulate_images",
+    "track_log_frames",
+    "track_truth",
+    "vision_sensors",
+]
 
 #: Camera fields the vision preset sets (the rest, e.g. texture density, stay the caller's).
 _GEOMETRY = (
@@ -56,6 +63,55 @@ def attach_tracks(
         truth["landmark_id"] = np.flatnonzero(ok)
         truth["landmark_xyz"] = landmark_xyz[ok]
     return replace(log, obs_k=tracks.k, obs_id=tracks.landmark_id, obs_uv=tracks.uv, truth=truth)
+
+
+def track_log_frames(
+    log: MeasurementLog, folder: str | Path, params: TrackParams | None = None
+) -> tuple[MeasurementLog, dict[str, Any]]:
+    """Run the front-end on a log's frames and put its tracks in the log.
+
+    Parameters
+    ----------
+    log : MeasurementLog
+        Keyframe times ``t`` (s, the clock of ``folder/timestamps.csv``), camera and odometry.
+    folder : path
+        Frames and ``timestamps.csv`` (:func:`read_frames`; missing, unreadable or wrongly
+        sized frames are skipped and counted).
+    params : TrackParams, optional
+        Front-end settings.
+
+    Returns
+    -------
+    (MeasurementLog, dict)
+        ``log`` with its observations from :func:`track_features`: landmark truth kept only
+        when the tracks are those the log already held (same keyframes, ids and pixels),
+        else removed; and what the front-end did: ``folder`` (its name), ``source`` (reused
+        the stored tracks, or tracked and why), ``tracks``, ``views_per_keyframe``,
+        ``frames_skipped`` and ``rejected`` (by reason), ``same_as_log`` (bool).
+    """
+    frames = read_frames(folder, log.t, log.sensors.camera)
+    tr = track_features(frames, log.sensors.camera, params, odometry=log.odometry)
+    same = (
+        tr.k.size == log.obs_k.size
+        and np.array_equal(tr.k, log.obs_k)
+        and np.array_equal(tr.landmark_id, log.obs_id)
+        and np.allclose(tr.uv, log.obs_uv, atol=1e-6)
+    )
+    truth_xyz = None
+    if same and "landmark_xyz" in log.truth:
+        truth_xyz = np.full((tr.n_tracks, 3), np.nan)
+        truth_xyz[log.truth["landmark_id"]] = log.truth["landmark_xyz"]
+    name = Path(folder).name  # products record the folder by name: the same bytes anywhere
+    record = {
+        "folder": name,
+        "source": str(tr.source).replace(str(Path(folder)), name),
+        "tracks": int(tr.n_tracks),
+        "views_per_keyframe": float(len(tr.k) / max(log.n_keyframes, 1)),
+        "frames_skipped": {k: int(v) for k, v in frames.skipped.items() if v},
+        "rejected": {k: int(v) for k, v in sorted(tr.counts.items())},
+        "same_as_log": bool(same),
+    }
+    return attach_tracks(log, tr, truth_xyz), record
 
 
 def track_truth(renderer: Renderer, tracks: FeatureTracks, poses) -> tuple[np.ndarray, np.ndarray]:

@@ -59,12 +59,19 @@ def inputs_digest(
     odometry: np.ndarray | None,
 ) -> str:
     """SHA-256 (hex) of the front-end's inputs: ``frames`` (keyframe -> file name and bytes;
-    a missing file hashes as missing), ``camera``, ``params``, ``odometry`` (K-1, 6) at 9
-    significant digits (or none) and the front-end's version."""
+    a missing file hashes as missing), ``camera`` (its numbers at 12 significant digits),
+    ``params``, ``odometry`` (K-1, 6) at 9 significant digits (or none) and the front-end's
+    version."""
     h = hashlib.sha256()
     h.update(_FORMAT.encode())
     h.update(_frontend_version().encode())
-    h.update(json.dumps(asdict(camera), sort_keys=True).encode())
+    # numbers as floats at 12 digits: a camera read back from camera.yaml (640.0) is the
+    # camera the frames were tracked with (640)
+    cam = {
+        k: (f"{float(v):.12g}" if isinstance(v, int | float) else v)
+        for k, v in asdict(camera).items()
+    }
+    h.update(json.dumps(cam, sort_keys=True).encode())
     h.update(json.dumps(asdict(params), sort_keys=True).encode())
     if odometry is None:
         h.update(b"no odometry")

@@ -28,10 +28,11 @@ FILES = {
 _LOG_TABLES = ("keyframes", "odometry", "gps", "observations", "landmarks")
 
 
-def read_log_folder(log_dir: Path):
+def read_log_folder(log_dir: Path, images: bool = True):
     """:func:`factorgraph.log.read_log`, with a file that pandas / pyarrow cannot parse named
     in the message instead of a bare parser error; a rover's field folder (``survey.json``,
-    docs/field-format.md) is read as ``glacimap process`` reads it."""
+    docs/field-format.md) is read as ``glacimap process`` reads it (its ``images/`` tracked
+    by the front-end unless ``images`` is False)."""
     import pandas as pd
 
     from factorgraph.log import read_log
@@ -43,7 +44,8 @@ def read_log_folder(log_dir: Path):
     if (log_dir / "survey.json").is_file():
         from factorgraph.field import read_field_log
 
-        log, report = read_field_log(log_dir)
+        with console.status("reading the field folder (and tracking its frames, if any)..."):
+            log, report = read_field_log(log_dir, images=images)
         for line in report.lines():
             console.print(line)
         return log
@@ -127,43 +129,31 @@ def _print_counts(summary: dict[str, Any], files: list[Path]) -> None:
     console.print("wrote " + ", ".join(str(f) for f in files))
 
 
-def _track_images(log, folder: Path):
-    """``log`` with its observations from the front-end run on ``folder``'s frames (landmark
-    truth kept only when the tracks are those the log already holds, same ids), and what the
-    front-end did for ``localize_summary.json``: whether it reused the tracks stored beside
-    the frames or tracked afresh, and why (``FeatureTracks.source``), with its counts."""
-    import numpy as np
-
-    from factorgraph.vision import attach_tracks, read_frames, track_features
-
-    frames = read_frames(folder, log.t, log.sensors.camera)
-    with console.status(f"tracking features in {len(frames.files)} frames..."):
-        tr = track_features(frames, log.sensors.camera, odometry=log.odometry)
-    same = (
-        tr.k.size == log.obs_k.size
-        and np.array_equal(tr.k, log.obs_k)
-        and np.array_equal(tr.landmark_id, log.obs_id)
-        and np.allclose(tr.uv, log.obs_uv, atol=1e-6)
-    )
-    truth_xyz = None
-    if same and "landmark_xyz" in log.truth:
-        truth_xyz = np.full((tr.n_tracks, 3), np.nan)
-        truth_xyz[log.truth["landmark_id"]] = log.truth["landmark_xyz"]
-    skipped = {k: v for k, v in frames.skipped.items() if v}
+def _print_front_end(record: dict) -> None:
+    """One line on what the camera front-end did (``track_log_frames``' record)."""
     console.print(
-        f"front-end on {folder} ({tr.source}): {tr.n_tracks} tracks, "
-        f"{len(tr.k) / log.n_keyframes:.1f} "
-        f"views per keyframe; frames skipped: {skipped or 'none'}; rejected: "
-        + ", ".join(f"{k} {v}" for k, v in sorted(tr.counts.items()))
-        + ("" if same else "; tracks differ from the log's table: landmark truth not used")
+        f"front-end on {record['folder']} ({record['source']}): {record['tracks']} tracks, "
+        f"{record['views_per_keyframe']:.1f} views per keyframe; frames skipped: "
+        f"{record['frames_skipped'] or 'none'}; rejected: "
+        + ", ".join(f"{k} {v}" for k, v in record["rejected"].items())
+        + (
+            ""
+            if record["same_as_log"]
+            else "; tracks differ from the log's table: landmark truth not used"
+        )
     )
-    front_end = {
-        "source": tr.source,
-        "tracks": int(tr.n_tracks),
-        "frames_skipped": skipped,
-        "rejected": {k: int(v) for k, v in tr.counts.items()},
-    }
-    return attach_tracks(log, tr, truth_xyz), front_end
+
+
+def _track_images(log, folder: Path):
+    """``log`` with its observations from the front-end run on ``folder``'s frames, and
+    what the front-end did for ``localize_summary.json`` (:func:`track_log_frames`)."""
+    from factorgraph.vision import track_log_frames
+
+    n = len(list(folder.glob("*.png")))
+    with console.status(f"tracking features in {n} frames..."):
+        log, record = track_log_frames(log, folder)
+    _print_front_end(record)
+    return log, record
 
 
 def localize_command(
@@ -241,8 +231,10 @@ def localize_command(
     ):
         if not (math.isfinite(sel_cfg[key]) and sel_cfg[key] >= 0):
             raise bad_input(opt, sel_cfg[key], "a finite distance >= 0 (m)", "e.g. 0.5 / 5")
-    log, front_end = read_log_folder(log_dir), None
-    if images and (log_dir / "images").is_dir():
+    log = read_log_folder(log_dir, images)  # a field folder's images/: tracked by its reader
+    front_end = (log.ingest or {}).get("front_end") or None
+    field = (log_dir / "survey.json").is_file()
+    if not field and images and (log_dir / "images").is_dir():
         log, front_end = _track_images(log, log_dir / "images")
     out_dir = ensure_writable_dir(out)
     with Progress(

@@ -37,6 +37,15 @@ def process_command(
         typer.Option("--bounds", help="Map extent W S E N in the log's CRS (m)."),
     ] = None,
     out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("out/process"),
+    images: Annotated[
+        bool,
+        typer.Option(
+            "--images/--no-images",
+            help="When the folder has camera frames (images/: PNG + timestamps.csv), track "
+            "them with the OpenCV front-end (docs/vision.md) instead of reading its tracks "
+            "table.",
+        ),
+    ] = True,
 ) -> None:
     """Ingest -> localize -> select -> reconstruct -> certify -> export -> report."""
     from toolkit.config import load_scenario
@@ -55,6 +64,7 @@ def process_command(
             bounds=bounds,
             on_stage=on_stage,
             on_progress=on_progress,
+            images=images,
         )
     cert = res.summary["certificate"]
     table = Table(title=f"glacimap process — seed {res.summary['seed']} — {res.out}")
@@ -72,6 +82,12 @@ def process_command(
         )
     for reason, n in (loc.get("gps_skipped") or {}).items():
         table.add_row(f"  GPS skipped: {reason}", str(n))
+    fe = ing.get("front_end")
+    if fe:  # the feature tracks came from the camera front-end on the folder's frames
+        how = "reused" if str(fe["source"]).startswith("reused") else "tracked"
+        table.add_row(f"feature tracks (front-end, {how})", str(fe["tracks"]))
+        for reason, n in (fe.get("frames_skipped") or {}).items():
+            table.add_row(f"  frames skipped: {reason}", str(n))
     table.add_row("landmarks selected", str(loc.get("landmarks_selected")))
     if loc.get("control"):
         table.add_row("ground control used", str(len(loc["control"].get("used", []))))
