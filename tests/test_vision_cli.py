@@ -176,3 +176,44 @@ def test_localize_on_a_field_folder_tracks_its_frames_once(field_chain, tmp_path
     summary = json.loads((tmp_path / "loc" / "localize_summary.json").read_text())
     assert summary["front_end"]["source"].startswith("reused")
     assert summary["selection_counts"]["in_graph"] > 0
+
+
+def test_field_camera_settings_are_checked_when_the_scenario_loads():
+    from toolkit.config import load_scenario
+
+    for over, field in (
+        ({"field": {"camera": "lidar"}}, "field.camera"),
+        ({"field": {"camera": "images", "scene": "fog"}}, "field.scene"),
+        (
+            {"field": {"camera": "images"}, "control": {"n_targets": 4, "mode": "targets"}},
+            "control.mode",
+        ),
+    ):
+        with pytest.raises(InputError, match=field.replace(".", r"\.")):
+            load_scenario(overrides=over)
+    assert load_scenario(overrides={"field": {"camera": "images"}})["field"]["scene"] == (
+        "sunny_snow"
+    )
+
+
+@pytest.mark.slow  # renders and tracks ~40 frames, then runs twice: ~40 s here
+def test_run_with_camera_images_processes_the_rendered_frames(tmp_path):
+    """``glacimap run --camera images``: the frames go into the field folder, ``process``
+    tracks them (reusing the tracks stored at rendering) and the certificate says so; a run
+    with ideal tracks into the same folder leaves no stale frames behind."""
+    toml = tmp_path / "tiny.toml"
+    toml.write_text(
+        "[site]\nbounds = [526000.0, 6475000.0, 526080.0, 6475080.0]\n"
+        "[plan]\nn_swaths = 1\n[certify]\nn_checkpoints = 50\n"
+    )
+    out = tmp_path / "run"
+    _ok(["run", "--config", toml, "--camera", "images", "--out", out])
+    cert = json.loads((out / "certificate.json").read_text())
+    assert cert["scenario"]["field"]["camera"] == "images"
+    assert cert["ingest"]["tracks"] == "front-end on images/"
+    assert cert["ingest"]["front_end"]["source"].startswith("reused images/")
+    assert (out / "field" / "rover" / "images" / "timestamps.csv").is_file()
+    _ok(["run", "--config", toml, "--out", out])
+    cert = json.loads((out / "certificate.json").read_text())
+    assert cert["ingest"]["tracks"] == "tracks.csv" and not cert["ingest"]["front_end"]
+    assert not (out / "field" / "rover" / "images").exists()

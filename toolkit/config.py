@@ -85,6 +85,11 @@ noise_sd_m = 0.3               # simulation: its independent error per cell (m)
 
 [field]                        # simulation: how the survey is written for glacimap process
 gps_format = "nmea"            # nmea | gpx | rtklib
+camera = "tracks"              # tracks: ideal simulated feature tracks; images: frames rendered
+                               # with the vision camera preset into rover/images, tracked by the
+                               # OpenCV front-end in process (docs/vision.md; ~0.45 s a frame)
+scene = "sunny_snow"           # camera = "images": sunny_snow | sunny_dirty_ice | overcast_snow
+                               # | low_sun
 
 [control]                      # simulation: ground control at the survey's 4 corners
 n_targets = 0                  # control points: 0, 4 at the corners, 8 stops at every turn
@@ -244,11 +249,31 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         raise bad_input(
             "control.mode", scenario["control"]["mode"], "stops|targets|both", 'mode = "stops"'
         )
+    _check_field(scenario)
     _check_models(scenario)
     from .epochs import check_change  # [change]: the second epoch's values
 
     check_change(scenario)
     return scenario
+
+
+def _check_field(scenario: dict[str, Any]) -> None:
+    """``[field]``: the camera route and its scene; rendered frames carry no marked targets."""
+    f = scenario["field"]
+    if f["camera"] not in ("tracks", "images"):
+        raise bad_input("field.camera", f["camera"], "tracks|images", 'camera = "tracks"')
+    if f["camera"] == "images":
+        from factorgraph.vision import SCENES
+
+        if f["scene"] not in SCENES:
+            raise bad_input("field.scene", f["scene"], "|".join(sorted(SCENES)), "pick one")
+        if int(scenario["control"]["n_targets"]) and scenario["control"]["mode"] != "stops":
+            raise bad_input(
+                "control.mode",
+                scenario["control"]["mode"],
+                '"stops" with field.camera = "images" (the renderer draws no marked targets)',
+                'mode = "stops"',
+            )
 
 
 def _check_models(scenario: dict[str, Any]) -> None:

@@ -46,6 +46,7 @@ __all__ = [
     "samples_table",
     "select_samples",
     "simulate_log",
+    "simulate_survey",
     "trajectory_table",
 ]
 
@@ -116,6 +117,23 @@ def simulate_log(scenario: dict[str, Any], truth, plan) -> MeasurementLog:
     """Drive ``plan`` over ``truth`` with the scenario's ``[sensors]`` and seed."""
     sensors = SensorSuite.from_dict(scenario["sensors"])
     return simulate_traverse(truth, plan, sensors=sensors, seed=int(scenario["seed"]))
+
+
+def simulate_survey(scenario: dict[str, Any], truth, plan, images_dir: Path) -> MeasurementLog:
+    """The scenario's survey log: ideal feature tracks, or with ``[field] camera = "images"``
+    frames rendered with the vision camera preset into ``images_dir`` (PNG, timestamps and
+    the tracks stored beside them) and tracked by the OpenCV front-end
+    (:func:`factorgraph.vision.simulate_images`; landmark truth from the renderer)."""
+    shutil.rmtree(images_dir, ignore_errors=True)  # no stale frames for process to track
+    if scenario["field"]["camera"] != "images":
+        return simulate_log(scenario, truth, plan)
+    from factorgraph.vision import SCENES, simulate_images, vision_sensors
+
+    sensors = vision_sensors(SensorSuite.from_dict(scenario["sensors"]))
+    scene = SCENES[scenario["field"]["scene"]]
+    return simulate_images(
+        truth, plan, sensors, int(scenario["seed"]), scene, images_dir=images_dir
+    ).log
 
 
 #: kept for the chained commands: the same stage functions ``process`` uses
@@ -211,7 +229,7 @@ def run_scenario(
     plan = make_plan(scenario, truth)
 
     def _simulate():
-        log = simulate_log(scenario, truth, plan)
+        log = simulate_survey(scenario, truth, plan, out / "field" / "rover" / "images")
         return write_field_survey(scenario, truth, log, out / "field", plan=plan)
 
     fresh = not (out / "field").exists()

@@ -26,6 +26,19 @@ def run_command(
             "surveyed anew (docs/change.md).",
         ),
     ] = None,
+    camera: Annotated[
+        str | None,
+        typer.Option(
+            "--camera",
+            help="Override [field] camera: tracks (ideal feature tracks) or images (render the "
+            "frames into OUT/field/rover/images; process tracks them with the OpenCV "
+            "front-end; ~0.45 s a frame, the default survey ~10 min).",
+        ),
+    ] = None,
+    scene: Annotated[
+        str | None,
+        typer.Option("--scene", help="Override [field] scene (with images): sunny_snow, ..."),
+    ] = None,
     print_default: Annotated[
         bool, typer.Option("--print-default", help="Print the embedded scenario and exit.")
     ] = False,
@@ -42,6 +55,9 @@ def run_command(
     overrides = {"seed": seed} if seed is not None else {}
     if epoch is not None:
         overrides["change"] = {"epoch": epoch}
+    field = {k: v for k, v in (("camera", camera), ("scene", scene)) if v is not None}
+    if field:
+        overrides["field"] = field
     overrides = overrides or None
     load_scenario(config, overrides)  # bad input fails here, before the progress display
     with stage_progress(console, STAGES) as (on_stage, on_progress):
