@@ -102,20 +102,12 @@ class IngestReport:
                 else ")"
             ),
         ]
-        out += [f"  skipped {n} GPS records: {r}" for r, n in sorted(self.gps_skipped.items())]
+        out += _skipped("GPS records", self.gps_skipped)
         if self.gps_gaps.get("count"):
             g = self.gps_gaps
             out.append(f"  {g['count']:.0f} GPS gaps, longest {g['longest_s']:.1f} s")
-        out += [f"  skipped {n} observations: {r}" for r, n in sorted(self.tracks_skipped.items())]
-        if self.front_end:
-            fe = self.front_end
-            out.append(
-                f"tracks from the front-end on {fe['folder']} ({fe['source']}): "
-                f"{fe['tracks']} tracks, {fe['views_per_keyframe']:.1f} views per keyframe"
-            )
-            out += [f"  skipped {n} frames: {r}" for r, n in sorted(fe["frames_skipped"].items())]
-            rejected = ", ".join(f"{r} {n}" for r, n in fe["rejected"].items() if n)
-            out.append(f"  front-end rejections: {rejected or 'none'}")
+        out += _skipped("observations", self.tracks_skipped)
+        out += _front_end_lines(self.front_end)
         out.append(f"tilt {self.tilt}; camera {self.camera}")
         if self.stops:
             st = self.stops
@@ -123,6 +115,23 @@ class IngestReport:
                 f"stops {st['file']}: {st['keyframes']} keyframes on {len(st['points'])} "
                 f"control points ({', '.join(st['points'][:8])})"
             )
-            out += [f"  skipped {n} stop rows: {r}" for r, n in sorted(st["skipped"].items())]
+            out += _skipped("stop rows", st["skipped"])
         out += [f"warning: {w}" for w in self.warnings]
         return out
+
+
+def _skipped(what: str, counts: dict[str, int]) -> list[str]:
+    """One line per reason: ``  skipped N <what>: <reason>``."""
+    return [f"  skipped {n} {what}: {r}" for r, n in sorted(counts.items())]
+
+
+def _front_end_lines(fe: dict[str, Any]) -> list[str]:
+    """What the camera front-end did on the folder's frames (none without frames)."""
+    if not fe:
+        return []
+    head = (
+        f"tracks from the front-end on {fe['folder']} ({fe['source']}): "
+        f"{fe['tracks']} tracks, {fe['views_per_keyframe']:.1f} views per keyframe"
+    )
+    rejected = ", ".join(f"{r} {n}" for r, n in fe["rejected"].items() if n) or "none"
+    return [head, *_skipped("frames", fe["frames_skipped"]), f"  front-end rejections: {rejected}"]
