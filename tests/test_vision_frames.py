@@ -63,3 +63,32 @@ def test_missing_table_or_columns_are_input_errors(tmp_path):
     (tmp_path / "timestamps.csv").write_text("time,name\n0,a.png\n")
     with pytest.raises(InputError, match="columns"):
         read_frames(tmp_path, np.arange(3.0))
+
+
+def test_frames_on_another_clock_are_an_input_error_naming_both_ranges(tmp_path):
+    """Frame times in UTC beside keyframes on the rover clock match nothing: one clear error
+    (both time ranges, the fix), not a front-end that finds 'no usable frame'."""
+    t = np.arange(4) * 2.0
+    list(write_frames(tmp_path, iter(frames(4)), t))
+    rows = (tmp_path / "timestamps.csv").read_text().splitlines()
+    shifted = [rows[0]] + [
+        ",".join([k, str(float(ts) + 1.78e9), f]) for k, ts, f in (r.split(",") for r in rows[1:])
+    ]
+    (tmp_path / "timestamps.csv").write_text("\n".join(shifted) + "\n")
+    with pytest.raises(InputError, match="t_s") as err:
+        read_frames(tmp_path, t, CAM)
+    msg = str(err.value)
+    assert "4 frames at 1780000000.000-1780000006.000 s" in msg and "0.000-6.000 s" in msg
+    assert "clock_offset_s" in msg
+
+
+def test_a_sequence_without_a_usable_frame_names_the_skips():
+    from collections import Counter
+
+    from factorgraph.vision import track_features
+    from factorgraph.vision.camera_frames import ImageFolder
+
+    folder = ImageFolder({}, 3, CAM, Counter())
+    with pytest.raises(InputError, match="keyframe_without_frame") as err:
+        track_features(folder, CAM, reuse=False)
+    assert "64 x 48 px" in str(err.value)

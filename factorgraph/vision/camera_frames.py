@@ -165,4 +165,13 @@ def read_frames(
             skipped["duplicate_keyframe"] += 1
         else:
             files[int(k)] = folder / name
+    if not files and np.isfinite(ts).any():  # e.g. frame times in UTC, keyframes on the rover clock
+        raise bad_input(
+            f"{TIMESTAMPS} t_s",
+            f"{int(np.isfinite(ts).sum())} frames at {np.nanmin(ts):.3f}-{np.nanmax(ts):.3f} s",
+            f"times within {tol:.3f} s of the keyframes ({t[0]:.3f}-{t[-1]:.3f} s, the log's "
+            "clock)",
+            "write t_s on the clock of the keyframes (a field folder: odometry.csv's rover clock), "
+            "e.g. shift UTC times by survey.json clock_offset_s",
+        )
     return ImageFolder(files, len(t), camera, skipped, folder)

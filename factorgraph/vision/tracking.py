@@ -458,7 +458,13 @@ def track_features(
     id_all = np.concatenate(obs_id) if obs_id else np.zeros(0, int)
     uv_all = np.concatenate(obs_uv) if obs_uv else np.zeros((0, 2))
     if per_frame == []:
-        raise bad_input("images", "no usable frame", "frames of the camera's size", "check them")
+        skipped = dict(getattr(images, "skipped", {}) or {})
+        raise bad_input(
+            "images",
+            f"no usable frame (skipped: {skipped or 'none'})",
+            f"readable frames of the camera's size ({camera.width_px:g} x {camera.height_px:g} px)",
+            "check the files, or the camera's image_width / image_height",
+        )
     lens = np.array([length.get(int(i), 0) for i in id_all])
     short = lens < params.min_track_length
     counts["track_too_short"] += int(np.unique(id_all[short]).size)
