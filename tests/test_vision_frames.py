@@ -92,3 +92,25 @@ def test_a_sequence_without_a_usable_frame_names_the_skips():
     with pytest.raises(InputError, match="keyframe_without_frame") as err:
         track_features(folder, CAM, reuse=False)
     assert "64 x 48 px" in str(err.value)
+
+
+def test_a_video_rate_camera_gives_each_keyframe_its_nearest_frame(tmp_path):
+    """Frames at 5 Hz beside keyframes every 2 s: the frame nearest each keyframe's time is
+    its view (not the first within the tolerance, 0.4 s and ~0.4 m of driving away)."""
+    import cv2
+
+    t = np.arange(3) * 2.0  # keyframes 0, 2, 4 s; tolerance 0.5 s
+    rows = ["t_s,file"]
+    for i, ts in enumerate(np.arange(-0.4, 4.5, 0.2)):
+        cv2.imwrite(str(tmp_path / f"v{i:03d}.png"), np.full((48, 64), i, np.uint8))
+        rows.append(f"{ts:.1f},v{i:03d}.png")
+    (tmp_path / "timestamps.csv").write_text("\n".join(rows) + "\n")
+    folder = read_frames(tmp_path, t, CAM)
+    assert {k: p.name for k, p in folder.files.items()} == {
+        0: "v002.png",
+        1: "v012.png",
+        2: "v022.png",
+    }
+    # 5 frames within 0.5 s of each keyframe: 1 used, 4 duplicates; 10 frames between them
+    assert folder.skipped["duplicate_keyframe"] == 12
+    assert folder.skipped["no_matching_keyframe"] == 10

@@ -128,7 +128,8 @@ def read_frames(
         Frames of another size are skipped (counted).
     tolerance_s : float, optional
         Largest |frame time - keyframe time|; default a quarter of the smallest keyframe
-        interval.
+        interval. Of several frames within it (a video-rate camera), the nearest in time
+        is the keyframe's view; the others count as ``duplicate_keyframe``.
     """
     import pandas as pd
 
@@ -156,15 +157,18 @@ def read_frames(
     files: dict[int, Path] = {}
     j = np.clip(np.searchsorted(t, ts), 1, len(t) - 1)
     near = np.where(np.abs(ts - t[j - 1]) <= np.abs(ts - t[j]), j - 1, j)
-    for i, (k, name) in enumerate(zip(near, df["file"].astype(str), strict=True)):
-        if not np.isfinite(ts[i]):
-            continue
-        if abs(ts[i] - t[k]) > tol:
+    dt = np.abs(ts - t[near])
+    names = df["file"].astype(str).to_numpy()
+    # the frame nearest in time to its keyframe is its view (a 10 Hz camera gives several
+    # within the tolerance; the others are counted as duplicates); ties: the first row
+    for i in sorted(np.flatnonzero(np.isfinite(ts)), key=lambda i: (dt[i], i)):
+        k = int(near[i])
+        if dt[i] > tol:
             skipped["no_matching_keyframe"] += 1
-        elif int(k) in files:
+        elif k in files:
             skipped["duplicate_keyframe"] += 1
         else:
-            files[int(k)] = folder / name
+            files[k] = folder / names[i]
     if not files and np.isfinite(ts).any():  # e.g. frame times in UTC, keyframes on the rover clock
         raise bad_input(
             f"{TIMESTAMPS} t_s",
