@@ -114,3 +114,22 @@ def test_a_video_rate_camera_gives_each_keyframe_its_nearest_frame(tmp_path):
     # 5 frames within 0.5 s of each keyframe: 1 used, 4 duplicates; 10 frames between them
     assert folder.skipped["duplicate_keyframe"] == 12
     assert folder.skipped["no_matching_keyframe"] == 10
+
+
+def test_sixteen_bit_frames_are_scaled_by_their_data_depth(tmp_path):
+    """A 12-bit camera's frames in 16-bit PNGs (0-4095): divided by 16 (OpenCV's own 8-bit
+    read divides by 256 and leaves them nearly black); the depth only grows."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    twelve = rng.integers(0, 4096, (48, 64)).astype(np.uint16)
+    dark = (twelve // 8).astype(np.uint16)  # a dark frame of the same camera: max < 1024
+    fourteen = rng.integers(0, 16384, (48, 64)).astype(np.uint16)
+    for name, img in (("a", twelve), ("b", dark), ("c", fourteen)):
+        cv2.imwrite(str(tmp_path / f"{name}.png"), img)
+    (tmp_path / "timestamps.csv").write_text("t_s,file\n0,a.png\n2,b.png\n4,c.png\n")
+    got = dict(read_frames(tmp_path, np.arange(3) * 2.0, CAM))
+    assert got[0].dtype == np.uint8 and np.array_equal(got[0], (twelve >> 4).astype(np.uint8))
+    assert np.array_equal(got[1], (dark >> 4).astype(np.uint8))  # not re-stretched to 10 bits
+    assert np.array_equal(got[2], (fourteen >> 6).astype(np.uint8))
+    assert cv2.imread(str(tmp_path / "a.png"), cv2.IMREAD_GRAYSCALE).max() <= 15

@@ -6,7 +6,8 @@ Layout (the log folder's ``images/``)
 ``timestamps.csv``
     ``t_s, file`` (s, name relative to the folder); optional ``k`` (keyframe index).
 ``*.png``
-    8-bit grayscale (colour is converted), the camera model's width x height.
+    8-bit grayscale (colour is converted; 16-bit frames are scaled by their data's bit
+    depth, e.g. a 12-bit camera's by 1/16), the camera model's width x height.
 
 :func:`read_frames` matches each row to the log's keyframes by time (nearest keyframe within
 ``tolerance_s``). Missing, unreadable and wrong-size files, rows that match no keyframe and
@@ -80,9 +81,22 @@ class ImageFolder:
     ):
         self.files, self.n_keyframes = files, n_keyframes
         self.camera, self.skipped, self.folder = camera, skipped, folder
+        self.bits = 8  # the data bits of 16-bit frames seen so far (10, 12, 14 or 16)
 
     def __len__(self) -> int:
         return self.n_keyframes
+
+    def _to_8bit(self, img: np.ndarray) -> np.ndarray | None:
+        """A 16-bit frame as 8 bits by its data's bit depth: a 12-bit camera's frames
+        (0-4095 in a 16-bit PNG) are divided by 16, not 256 (OpenCV's own conversion, which
+        left them black). The depth is the smallest of 10, 12, 14, 16 bits holding every
+        frame so far: it only grows, so a dark frame is not brightened against its
+        neighbours. Not 8- or 16-bit unsigned: unreadable (None)."""
+        if img.dtype != np.uint16:
+            return None
+        top = int(img.max())
+        self.bits = max(self.bits, next(b for b in (10, 12, 14, 16) if top < 1 << b))
+        return (img >> (self.bits - 8)).astype(np.uint8)
 
     def __iter__(self) -> Iterator[tuple[int, np.ndarray | None]]:
         import cv2
@@ -97,7 +111,9 @@ class ImageFolder:
                 self.skipped["missing_file"] += 1
                 yield k, None
                 continue
-            img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+            if img is not None and img.dtype != np.uint8:
+                img = self._to_8bit(img)
             if img is None:
                 self.skipped["unreadable"] += 1
                 yield k, None
