@@ -147,7 +147,8 @@ def test_process_tracks_a_field_folders_frames_like_its_tracks_table(field_chain
 
     field = field_chain / "field"
     assert (field / "images" / "timestamps.csv").is_file() and (field / "tracks.csv").is_file()
-    _ok(["process", field, "--out", tmp_path / "img"])
+    res = _ok(["process", field, "--out", tmp_path / "img"])
+    assert "to track with the OpenCV front-end" in " ".join(res.output.split())
     cert = json.loads((tmp_path / "img" / "certificate.json").read_text())
     fe = cert["ingest"]["front_end"]
     assert fe["source"].startswith("reused images/") and fe["tracks"] > 50

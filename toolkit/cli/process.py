@@ -53,6 +53,8 @@ def process_command(
 
     console = Console()
     settings = load_scenario(config)  # bad settings fail before any work
+    if images:
+        _say_frames(console, log_dir)
     with stage_progress(console, PROCESS_STAGES) as (on_stage, on_progress):
         res = process(
             log_dir,
@@ -101,3 +103,23 @@ def process_command(
             f"run did not make: {', '.join(res.removed)}"
         )
     print_warnings(console, cert)
+
+
+#: Front-end seconds per 640 x 480 frame on the 2 reference cores (docs/vision.md: 1,386
+#: frames tracked in 228 s on a quiet machine, 506 s under load)
+TRACK_SECONDS_PER_FRAME = (0.16, 0.37)
+
+
+def _say_frames(console: Console, log_dir: Path) -> None:
+    """Before the (long, bar-less) ingest: how many frames the front-end will track."""
+    stamps = log_dir / "images" / "timestamps.csv"
+    if not stamps.is_file():
+        return
+    n = max(sum(1 for _ in stamps.open()) - 1, 0)
+    lo, hi = (n * s for s in TRACK_SECONDS_PER_FRAME)
+    span = f"{lo:.0f}-{hi:.0f} s" if hi < 120 else f"{lo / 60:.0f}-{hi / 60:.0f} min"
+    console.print(
+        f"camera frames in {stamps.parent}: {n} to track with the OpenCV front-end, about "
+        f"{span} (seconds if the tracks stored beside them match); --no-images reads the "
+        "tracks table instead"
+    )
