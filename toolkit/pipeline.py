@@ -15,6 +15,7 @@ import json
 import shutil
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ from .epochs import epoch_truth, survey_scenario, write_change_truth
 from .field_survey import write_field_survey
 from .processing import PROCESS_STAGES, ProcessResult, _json_default, process
 from .products import landmark_table, samples_table, trajectory_table
-from .stages import localization_summary, localize_stage, select_stage
+from .stages import landmark_truth_errors, localization_summary, localize_stage, select_stage
 
 __all__ = [
     "RunResult",
@@ -295,14 +296,22 @@ def run_scenario(
     return res
 
 
-def _localization_truth(loc, sim_log: MeasurementLog) -> dict[str, float]:
-    """Keyframe errors of the processed (field-file) localization against the simulation's
-    true path, matched by keyframe time (the field log keeps the rover clock)."""
+def _localization_truth(loc, sim_log: MeasurementLog) -> dict[str, Any]:
+    """Errors of the processed (field-file) localization against the simulation's truth:
+    keyframes matched by keyframe time (the field log keeps the rover clock), landmarks by
+    id (:func:`toolkit.stages.landmark_truth_errors`: NEES, within 2 sigma, 3-D RMSE)."""
     if not sim_log.has_truth or loc.log.n_keyframes != sim_log.n_keyframes:
         return {}
-    true = sim_log.truth["xyz"] + np.r_[sim_log.origin - loc.log.origin, 0.0]
-    err = loc.keyframe_xyz - true
-    return {
+    shift = np.r_[sim_log.origin - loc.log.origin, 0.0]  # the simulation's frame -> the log's
+    err = loc.keyframe_xyz - (sim_log.truth["xyz"] + shift)
+    out: dict[str, Any] = {
         "horizontal_rmse_m": float(np.sqrt((err[:, :2] ** 2).sum(1).mean())),
         "vertical_rmse_m": float(np.sqrt((err[:, 2] ** 2).mean())),
     }
+    if "landmark_xyz" in sim_log.truth and loc.n_landmarks:
+        truth = {
+            "landmark_id": sim_log.truth["landmark_id"],
+            "landmark_xyz": np.asarray(sim_log.truth["landmark_xyz"], float) + shift,
+        }
+        out.update(landmark_truth_errors(replace(loc, log=replace(loc.log, truth=truth))))
+    return out
