@@ -214,6 +214,10 @@ def test_run_with_camera_images_processes_the_rendered_frames(tmp_path):
     assert cert["ingest"]["tracks"] == "front-end on images/"
     assert cert["ingest"]["front_end"]["source"].startswith("reused images/")
     assert (out / "field" / "rover" / "images" / "timestamps.csv").is_file()
+    # the landmarks scored against the renderer's truth by id, through the field folder
+    sim = cert["localization"]["simulation"]
+    assert 0 < sim["landmark_nees_mean"] < 20 and sim["landmark_within_2sigma"] > 0.5
+    assert sim["landmark_rmse_3d_m"] > 0
     _ok(["run", "--config", toml, "--out", out])
     cert = json.loads((out / "certificate.json").read_text())
     assert cert["ingest"]["tracks"] == "tracks.csv" and not cert["ingest"]["front_end"]

@@ -157,15 +157,20 @@ def simulate_command(
         typer.Option(help="Override the scenario's change.epoch: 2 = the site after its change."),
     ] = None,
     camera: Annotated[
-        str,
+        str | None,
         typer.Option(
-            help="tracks: ideal simulated feature tracks (default); images: render the "
-            "frames (vision camera preset) into OUT/images and track them (docs/vision.md)."
+            help="tracks: ideal simulated feature tracks; images: render the frames (vision "
+            "camera preset) into OUT/images and track them (docs/vision.md). Default: the "
+            "scenario's [field] camera (tracks)."
         ),
-    ] = "tracks",
+    ] = None,
     scene: Annotated[
-        str, typer.Option(help="With --camera images: sunny_snow, sunny_dirty_ice, ...")
-    ] = "sunny_snow",
+        str | None,
+        typer.Option(
+            help="With --camera images: sunny_snow, sunny_dirty_ice, ... Default: the "
+            "scenario's [field] scene (sunny_snow)."
+        ),
+    ] = None,
 ) -> None:
     """Simulate a rover traverse: drive the scenario's plan (or --plan FILE) over the
     scenario's true DEM with its sensors (GPS with Gauss-Markov bias, odometry with drift,
@@ -186,11 +191,13 @@ def simulate_command(
         raise bad_input("--format", fmt, " or ".join(FORMATS), "pick one")
     if gps_format not in GPS_FORMATS:
         raise bad_input("--gps-format", gps_format, " or ".join(GPS_FORMATS), "pick one")
-    _check_camera(camera, scene, out)
     overrides: dict[str, Any] = {"seed": seed} if seed is not None else {}
     if epoch is not None:
         overrides["change"] = {"epoch": epoch}
     scenario = load_scenario(config, overrides or None)
+    camera = camera or scenario["field"]["camera"]  # one TOML, one survey: as glacimap run
+    scene = scene or scenario["field"]["scene"]
+    _check_camera(camera, scene, out)
     survey_plan = read_plan(plan) if plan is not None else None
     out_dir = ensure_writable_dir(out)
     with console.status("building the true terrain..."):
