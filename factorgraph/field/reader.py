@@ -372,9 +372,8 @@ def read_field_log(
     if images_dir is not None:  # the camera front-end on the frames (rover clock = t_kf)
         from ..vision import track_log_frames
 
-        log, rep.front_end = track_log_frames(log, images_dir)
+        # the lens distortion inside the front-end: its RANSAC and its pixels are pinhole
+        log, rep.front_end = track_log_frames(log, images_dir, distortion=dist)
         rep.tracks = f"front-end on {images_dir.name}/"
-        if dist is not None:
-            log = replace(log, obs_uv=undistort(log.obs_uv, camera, dist))
         log = replace(log, ingest=rep.as_dict())
     return log, rep

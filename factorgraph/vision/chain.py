@@ -66,7 +66,10 @@ def attach_tracks(
 
 
 def track_log_frames(
-    log: MeasurementLog, folder: str | Path, params: TrackParams | None = None
+    log: MeasurementLog,
+    folder: str | Path,
+    params: TrackParams | None = None,
+    distortion: np.ndarray | None = None,
 ) -> tuple[MeasurementLog, dict[str, Any]]:
     """Run the front-end on a log's frames and put its tracks in the log.
 
@@ -79,6 +82,9 @@ def track_log_frames(
         sized frames are skipped and counted).
     params : TrackParams, optional
         Front-end settings.
+    distortion : ndarray, optional
+        The lens's OpenCV distortion coefficients (a field folder's ``camera.yaml``): the
+        tracks come out in the pinhole camera's pixels (:func:`track_features`).
 
     Returns
     -------
@@ -90,7 +96,9 @@ def track_log_frames(
         ``frames_skipped`` and ``rejected`` (by reason), ``same_as_log`` (bool).
     """
     frames = read_frames(folder, log.t, log.sensors.camera)
-    tr = track_features(frames, log.sensors.camera, params, odometry=log.odometry)
+    tr = track_features(
+        frames, log.sensors.camera, params, odometry=log.odometry, distortion=distortion
+    )
     same = (
         tr.k.size == log.obs_k.size
         and np.array_equal(tr.k, log.obs_k)

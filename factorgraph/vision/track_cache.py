@@ -57,11 +57,12 @@ def inputs_digest(
     camera: CameraModel,
     params: TrackParams,
     odometry: np.ndarray | None,
+    distortion: np.ndarray | None = None,
 ) -> str:
     """SHA-256 (hex) of the front-end's inputs: ``frames`` (keyframe -> file name and bytes;
     a missing file hashes as missing), ``camera`` (its numbers at 12 significant digits),
-    ``params``, ``odometry`` (K-1, 6) at 9 significant digits (or none) and the front-end's
-    version."""
+    ``params``, ``odometry`` (K-1, 6) at 9 significant digits (or none), the lens
+    ``distortion`` coefficients (when given) and the front-end's version."""
     h = hashlib.sha256()
     h.update(_FORMAT.encode())
     h.update(_frontend_version().encode())
@@ -79,6 +80,8 @@ def inputs_digest(
         odo = np.asarray(odometry, float)
         h.update(repr(odo.shape).encode())
         h.update(" ".join(f"{v:.9g}" for v in odo.ravel()).encode())
+    if distortion is not None:  # the lens model the pixels were undistorted with
+        h.update(("distortion " + " ".join(f"{v:.12g}" for v in np.ravel(distortion))).encode())
     h.update(f"keyframes {frames.n_keyframes}".encode())
     for k in sorted(frames.files):
         path = frames.files[k]
@@ -93,11 +96,12 @@ def save_tracks(
     frames: ImageFolder,
     camera: CameraModel,
     odometry: np.ndarray | None,
+    distortion: np.ndarray | None = None,
 ) -> str:
-    """Write ``tracks`` (made by ``tracks.params`` from ``frames`` with ``camera`` and
-    ``odometry``) into ``folder/tracks.npz`` (atomically) with the inputs' digest; returns
-    the digest."""
-    digest = inputs_digest(frames, camera, tracks.params, odometry)
+    """Write ``tracks`` (made by ``tracks.params`` from ``frames`` with ``camera``,
+    ``odometry`` and ``distortion``) into ``folder/tracks.npz`` (atomically) with the inputs'
+    digest; returns the digest."""
+    digest = inputs_digest(frames, camera, tracks.params, odometry, distortion)
     meta = {
         "format": _FORMAT,
         "digest": digest,
@@ -122,6 +126,7 @@ def load_tracks(
     camera: CameraModel,
     params: TrackParams,
     odometry: np.ndarray | None,
+    distortion: np.ndarray | None = None,
 ) -> tuple[FeatureTracks | None, str]:
     """The tracks stored in ``frames``'s folder when they were made from the same inputs
     (:func:`inputs_digest`), else ``None``; and why (``reused``, ``no stored tracks``,
@@ -137,7 +142,7 @@ def load_tracks(
     except Exception:  # a truncated or foreign file: track again
         return None, "unreadable"
     if meta.get("format") != _FORMAT or meta.get("digest") != inputs_digest(
-        frames, camera, params, odometry
+        frames, camera, params, odometry, distortion
     ):
         return None, "inputs differ"
     source = f"reused {path} (inputs sha256 {meta['digest'][:12]})"

@@ -286,6 +286,33 @@ def _verify(p0, p1, Kmat, params, counts) -> np.ndarray:
     return ok
 
 
+def _undistorter(camera: CameraModel, distortion: Any, params: TrackParams):
+    """Detected pixels (n, 2) -> the pinhole camera's (identity without ``distortion``)."""
+    if distortion is None:
+        return lambda pts: pts
+    import cv2
+
+    dist = np.asarray(distortion, float).ravel()
+    if dist.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(dist)):
+        raise bad_input("distortion", dist.tolist(), "4, 5, 8, 12 or 14 finite coefficients", "")
+    if params.detector == "klt":
+        raise bad_input(
+            "distortion",
+            "with detector='klt'",
+            "a descriptor detector (sift, orb, akaze): KLT follows pixels in the recorded image",
+            "undistort the frames first (cv2.undistort), or use detector='sift'",
+        )
+    K = np.array([[camera.fx_px, 0, camera.cx_px], [0, camera.fy_px, camera.cy_px], [0, 0, 1.0]])
+
+    def undistort(pts: np.ndarray) -> np.ndarray:
+        if not len(pts):
+            return pts
+        p = np.asarray(pts, np.float64).reshape(-1, 1, 2)
+        return cv2.undistortPoints(p, K, dist, P=K).reshape(-1, 2).astype(np.float32)
+
+    return undistort
+
+
 def _iter_frames(images) -> Iterable[tuple[int, Any]]:
     for i, item in enumerate(images):
         if isinstance(item, tuple) and len(item) == 2:
@@ -300,6 +327,7 @@ def track_features(
     params: TrackParams | None = None,
     odometry: np.ndarray | None = None,
     reuse: bool = True,
+    distortion: np.ndarray | None = None,
 ) -> FeatureTracks:
     """Track features through an image sequence.
 
@@ -321,6 +349,12 @@ def track_features(
         stored by :func:`factorgraph.vision.track_cache.save_tracks` from the same frame
         bytes, camera, parameters and odometry, return those (``source`` says so) instead
         of tracking again; any other folder is tracked.
+    distortion : ndarray, optional
+        The lens's OpenCV distortion coefficients (k1 k2 p1 p2 [k3 ...]) for ``camera``'s
+        intrinsics: features are detected in the recorded frames and undistorted at once
+        (``cv2.undistortPoints``), so guided matching, the essential-matrix RANSAC and the
+        returned pixels are the ideal pinhole camera's. Descriptor detectors only (KLT
+        follows pixels in the recorded image: undistort such frames first).
 
     Returns
     -------
@@ -333,11 +367,12 @@ def track_features(
     params = params or TrackParams()
     if not isinstance(camera, CameraModel):
         raise bad_input("camera", type(camera).__name__, "a CameraModel", "")
+    undistort = _undistorter(camera, distortion, params)
     source = "tracked"
     if reuse and hasattr(images, "folder") and hasattr(images, "files"):  # an ImageFolder
         from .track_cache import load_tracks
 
-        stored, why = load_tracks(images, camera, params, odometry)
+        stored, why = load_tracks(images, camera, params, odometry, distortion)
         if stored is not None:
             return stored
         source = f"tracked (stored tracks: {why})"
@@ -381,7 +416,7 @@ def track_features(
         if det is not None:
             pts, score, desc = _detect(work, det, params, region)
             keep = _bucket(pts, score, shape, params) if len(pts) else np.zeros(0, int)
-            pts, desc = pts[keep], None if desc is None else desc[keep]
+            pts, desc = undistort(pts[keep]), None if desc is None else desc[keep]
             ids = np.full(len(pts), -1)
             if prev is not None and len(pts):
                 pred = None
