@@ -45,10 +45,15 @@ TRACKS_FILE = "tracks.npz"
 _FORMAT = "glacimap-tracks/1"
 
 
+#: The modules whose source decides the tracks (their bytes are part of the digest).
+_FRONTEND_SOURCES = ("tracking.py", "frame_geometry.py", "camera_frames.py")
+
+
 def _frontend_version() -> str:
     import cv2
 
-    src = (Path(__file__).parent / "tracking.py").read_bytes()
+    here = Path(__file__).parent  # the front-end, its geometry and how frames are read
+    src = b"".join((here / f).read_bytes() for f in _FRONTEND_SOURCES)
     return hashlib.sha256(src).hexdigest() + " opencv " + cv2.__version__
 
 
