@@ -144,7 +144,8 @@ select_samples = select_stage
 
 def truth_metrics(truth, res_process, scenario: dict[str, Any]) -> dict[str, dict[str, float]]:
     """Simulation only: the map, Delaunay and (``[reconstruct] compare_constant_mean``) a
-    constant-mean GP against the truth on the map grid (RMSE, coverage, ...)."""
+    constant-mean GP against the truth on the map grid (RMSE, coverage, ...); the map also
+    on Delaunay's hull only (``gp_satellite_on_delaunay_hull``), like for like."""
     rec, grid = res_process.objects["reconstruction"], res_process.objects["grid"]
     truth_on_grid = truth.interp(x=grid.x, y=grid.y, method="linear").values
     maps = {"gp_satellite": rec.product, "delaunay": delaunay_linear(rec.samples, grid)}
@@ -162,6 +163,13 @@ def truth_metrics(truth, res_process, scenario: dict[str, Any]) -> dict[str, dic
     shifted = rec.product["elevation"].values - float(_offset_error(rec, truth_on_grid))
     rows = {name: (ds["elevation"].values, ds.get("elevation_std")) for name, ds in maps.items()}
     rows["gp_satellite_relative_sigma"] = (shifted, rel)
+    # like for like with Delaunay, which exists only inside the samples' hull (near data)
+    hull = np.isfinite(maps["delaunay"]["elevation"].values)
+    gp, gp_std = rows["gp_satellite"]
+    rows["gp_satellite_on_delaunay_hull"] = (
+        np.where(hull, gp, np.nan),
+        None if gp_std is None else np.where(hull, np.asarray(gp_std), np.nan),
+    )
     return {name: _against_truth(z, std, truth_on_grid) for name, (z, std) in rows.items()}
 
 
