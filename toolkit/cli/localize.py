@@ -149,8 +149,7 @@ def _track_images(log, folder: Path):
     what the front-end did for ``localize_summary.json`` (:func:`track_log_frames`)."""
     from factorgraph.vision import track_log_frames
 
-    n = len(list(folder.glob("*.png")))
-    with console.status(f"tracking features in {n} frames..."):
+    with console.status(f"tracking features in the frames of {folder}..."):
         log, record = track_log_frames(log, folder)
     _print_front_end(record)
     return log, record

@@ -32,7 +32,7 @@ def run_command(
             "--camera",
             help="Override [field] camera: tracks (ideal feature tracks) or images (render the "
             "frames into OUT/field/rover/images; process tracks them with the OpenCV "
-            "front-end; ~0.45 s a frame, the default survey ~10 min).",
+            "front-end; ~0.2-0.45 s a frame: the default survey 6-12 min).",
         ),
     ] = None,
     scene: Annotated[
