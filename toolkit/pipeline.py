@@ -120,11 +120,18 @@ def simulate_log(scenario: dict[str, Any], truth, plan) -> MeasurementLog:
     return simulate_traverse(truth, plan, sensors=sensors, seed=int(scenario["seed"]))
 
 
-def simulate_survey(scenario: dict[str, Any], truth, plan, images_dir: Path) -> MeasurementLog:
+def simulate_survey(
+    scenario: dict[str, Any],
+    truth,
+    plan,
+    images_dir: Path,
+    on_frames: Callable[[int, int], None] | None = None,
+) -> MeasurementLog:
     """The scenario's survey log: ideal feature tracks, or with ``[field] camera = "images"``
     frames rendered with the vision camera preset into ``images_dir`` (PNG, timestamps and
     the tracks stored beside them) and tracked by the OpenCV front-end
-    (:func:`factorgraph.vision.simulate_images`; landmark truth from the renderer)."""
+    (:func:`factorgraph.vision.simulate_images`; landmark truth from the renderer;
+    ``on_frames(k, K)`` after each frame)."""
     shutil.rmtree(images_dir, ignore_errors=True)  # no stale frames for process to track
     if scenario["field"]["camera"] != "images":
         return simulate_log(scenario, truth, plan)
@@ -132,8 +139,9 @@ def simulate_survey(scenario: dict[str, Any], truth, plan, images_dir: Path) -> 
 
     sensors = vision_sensors(SensorSuite.from_dict(scenario["sensors"]))
     scene = SCENES[scenario["field"]["scene"]]
+    seed = int(scenario["seed"])
     return simulate_images(
-        truth, plan, sensors, int(scenario["seed"]), scene, images_dir=images_dir
+        truth, plan, sensors, seed, scene, images_dir=images_dir, progress=on_frames
     ).log
 
 
@@ -200,6 +208,7 @@ def run_scenario(
     overrides: dict[str, Any] | None = None,
     on_stage: Callable[[str, str], None] | None = None,
     on_progress: Callable[[int, int], None] | None = None,
+    on_frames: Callable[[int, int], None] | None = None,
 ) -> RunResult:
     """Simulate the scenario's survey, write it as field files, and process them.
 
@@ -217,6 +226,8 @@ def run_scenario(
         ``on_stage(stage, "start" | "done")`` for progress display.
     on_progress : callable, optional
         ``on_progress(k, K)`` during localization.
+    on_frames : callable, optional
+        ``on_frames(k, K)`` after each rendered frame (``[field] camera = "images"``).
 
     Returns
     -------
@@ -238,7 +249,8 @@ def run_scenario(
     plan = make_plan(scenario, truth)
 
     def _simulate():
-        log = simulate_survey(scenario, truth, plan, out / "field" / "rover" / "images")
+        images = out / "field" / "rover" / "images"
+        log = simulate_survey(scenario, truth, plan, images, on_frames)
         return write_field_survey(scenario, truth, log, out / "field", plan=plan)
 
     fresh = not (out / "field").exists()

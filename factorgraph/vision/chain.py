@@ -173,10 +173,11 @@ class ImageRun:
 
 
 class _Timed:
-    """Iterator wrapper that adds the time spent inside ``next`` to ``self.s``."""
+    """Iterator wrapper that adds the time spent inside ``next`` to ``self.s`` and reports
+    ``progress(frames done, n)`` after each item."""
 
-    def __init__(self, it):
-        self.it, self.s = iter(it), 0.0
+    def __init__(self, it, n: int = 0, progress=None):
+        self.it, self.s, self.n, self.done, self.progress = iter(it), 0.0, n, 0, progress
 
     def __iter__(self):
         return self
@@ -184,9 +185,13 @@ class _Timed:
     def __next__(self):
         t0 = time.perf_counter()
         try:
-            return next(self.it)
+            item = next(self.it)
         finally:
             self.s += time.perf_counter() - t0
+        self.done += 1
+        if self.progress is not None:
+            self.progress(self.done, self.n)
+        return item
 
 
 def simulate_images(
@@ -198,6 +203,7 @@ def simulate_images(
     params: TrackParams | None = None,
     images_dir: str | Path | None = None,
     crs: str | None = None,
+    progress: Any = None,
 ) -> ImageRun:
     """Simulate a traverse, render its frames, track them and build the image-based log.
 
@@ -214,6 +220,8 @@ def simulate_images(
         Also write the frames there (PNG + ``timestamps.csv``) and the tracks with the
         digest of their inputs (``tracks.npz``: :mod:`.track_cache`), which
         :func:`track_features` reuses on the same frames, camera, parameters and odometry.
+    progress : callable, optional
+        ``progress(k, K)`` after each frame is rendered (``K`` keyframes).
     """
     sensors = sensors if sensors is not None else vision_sensors()
     if not isinstance(sensors, SensorSuite):
@@ -222,7 +230,7 @@ def simulate_images(
     t0 = time.perf_counter()
     renderer, frames = render_frames(ideal, terrain, scene, seed=seed)
     setup_s = time.perf_counter() - t0
-    timed = _Timed(frames)
+    timed = _Timed(frames, ideal.n_keyframes, progress)
     stream = write_frames(images_dir, timed, ideal.t) if images_dir is not None else timed
     t0 = time.perf_counter()
     tracks = track_features(stream, sensors.camera, params, odometry=ideal.odometry)

@@ -16,7 +16,8 @@ from rich.table import Table
 def stage_progress(
     console: Console, stages: tuple[str, ...]
 ) -> Iterator[tuple[Callable[[str, str], None], Callable[[int, int], None]]]:
-    """Yield ``(on_stage, on_progress)`` callbacks driving one bar per stage."""
+    """Yield ``(on_stage, on_progress)`` callbacks driving one bar per stage
+    (``on_progress(k, K, stage="localize")``: ``k`` of ``K`` done in ``stage``)."""
     with Progress(
         TextColumn("{task.description:<12}"),
         BarColumn(),
@@ -35,8 +36,8 @@ def stage_progress(
             else:
                 bar.update(tasks[name], completed=bar.tasks[tasks[name]].total)
 
-        def on_progress(k: int, total: int) -> None:
-            bar.update(tasks["localize"], total=total, completed=k)
+        def on_progress(k: int, total: int, stage: str = "localize") -> None:
+            bar.update(tasks[stage], total=total, completed=k)
 
         yield on_stage, on_progress
 

@@ -61,7 +61,14 @@ def run_command(
     overrides = overrides or None
     load_scenario(config, overrides)  # bad input fails here, before the progress display
     with stage_progress(console, STAGES) as (on_stage, on_progress):
-        res = run_scenario(config, out, overrides, on_stage=on_stage, on_progress=on_progress)
+        res = run_scenario(
+            config,
+            out,
+            overrides,
+            on_stage=on_stage,
+            on_progress=on_progress,
+            on_frames=lambda k, n: on_progress(k, n, "simulate"),  # rendered frames
+        )
     s, cert = res.summary, res.summary["certificate"]
     table = Table(title=f"glacimap run — seed {s['seed']} — {res.out}")
     table.add_column("quantity")
