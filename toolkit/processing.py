@@ -113,14 +113,17 @@ class ProcessResult:
         notify(name, "done")
 
 
-def ingest(log: Any, crs: Any = None, images: bool = True) -> tuple[MeasurementLog, dict[str, Any]]:
+def ingest(
+    log: Any, crs: Any = None, images: bool = True, on_frames: Any = None
+) -> tuple[MeasurementLog, dict[str, Any]]:
     """A measurement log from a :class:`MeasurementLog`, a ``glacimap-log/1`` folder
     (``meta.json``) or a rover's field folder (``survey.json``, docs/field-format.md).
 
     A folder with camera frames (``images/``: PNG + ``timestamps.csv``) gets its feature
     tracks from the OpenCV front-end (:func:`factorgraph.vision.track_log_frames`) unless
-    ``images`` is False. Returns the log and the ingest report (what was read, what was
-    skipped and why; ``front_end``: what the front-end did)."""
+    ``images`` is False (``on_frames(k, K)`` while it tracks). Returns the log and the ingest
+    report (what was read, what was skipped and why; ``front_end``: what the front-end
+    did)."""
     from factorgraph.field import read_field_log
     from factorgraph.log import read_log
 
@@ -128,7 +131,7 @@ def ingest(log: Any, crs: Any = None, images: bool = True) -> tuple[MeasurementL
         return log, dict(getattr(log, "ingest", None) or {})
     folder = Path(log)
     if (folder / "survey.json").is_file():
-        mlog, report = read_field_log(folder, crs=crs, images=images)
+        mlog, report = read_field_log(folder, crs=crs, images=images, progress=on_frames)
         return mlog, report.as_dict()
     if (folder / "meta.json").is_file():
         mlog = read_log(folder)
@@ -136,7 +139,9 @@ def ingest(log: Any, crs: Any = None, images: bool = True) -> tuple[MeasurementL
         if images and (folder / "images").is_dir():
             from factorgraph.vision import track_log_frames
 
-            mlog, report["front_end"] = track_log_frames(mlog, folder / "images")
+            mlog, report["front_end"] = track_log_frames(
+                mlog, folder / "images", progress=on_frames
+            )
         return mlog, report
     raise bad_input(
         "LOG_DIR",
@@ -211,6 +216,7 @@ def process(
     truth: Any = None,
     truth_path: Any = None,
     images: bool = True,
+    on_frames: Callable[[int, int], None] | None = None,
 ) -> ProcessResult:
     """Process a survey into certified products in ``out``.
 
@@ -241,6 +247,8 @@ def process(
     images : bool
         When the log folder has camera frames (``images/``), track them with the OpenCV
         front-end and use those tracks (default); False: the folder's tracks table.
+    on_frames : callable, optional
+        ``on_frames(k, K)`` while the front-end tracks the frames (ingest).
 
     Returns
     -------
@@ -253,13 +261,13 @@ def process(
     with output_folder(out) as folder:
         return _process(
             log, prior, control, checkpoints, settings, folder, bounds, on_stage, on_progress,
-            truth, truth_path, images,
+            truth, truth_path, images, on_frames,
         )  # fmt: skip
 
 
 def _process(
     log, prior, control, checkpoints, settings, out, bounds, on_stage, on_progress, truth,
-    truth_path, images=True,
+    truth_path, images=True, on_frames=None,
 ) -> ProcessResult:  # fmt: skip
     seed = int(settings["seed"])
     res = ProcessResult(out=out, settings=settings)
@@ -269,7 +277,7 @@ def _process(
         return res.stage(name, on_stage)
 
     with stage("ingest"):
-        mlog, ingest_report = ingest(log, images=images)
+        mlog, ingest_report = ingest(log, images=images, on_frames=on_frames)
         ctrl, cps = _control_and_checkpoints(control, checkpoints, mlog)
         mean = prior_mean(prior, settings)
         # which files made the map, by name and SHA-256 (every product's metadata)

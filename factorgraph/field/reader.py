@@ -202,6 +202,7 @@ def read_field_log(
     clock_offset_s: float | None = None,
     sync_tolerance_s: float | None = None,
     images: bool = True,
+    progress: Any = None,
 ) -> tuple[MeasurementLog, IngestReport]:
     """Read a field folder (docs/field-format.md) into a keyframe :class:`MeasurementLog`.
 
@@ -228,6 +229,8 @@ def read_field_log(
         the OpenCV front-end on them (:func:`factorgraph.vision.track_log_frames`; the
         tracks stored beside the frames are reused when their inputs match) and use its
         tracks instead of ``tracks.csv``; False: ``tracks.csv`` (required then).
+    progress : callable, optional
+        ``progress(k, K)`` while the front-end tracks the frames.
 
     Returns
     -------
@@ -373,7 +376,7 @@ def read_field_log(
         from ..vision import track_log_frames
 
         # the lens distortion inside the front-end: its RANSAC and its pixels are pinhole
-        log, rep.front_end = track_log_frames(log, images_dir, distortion=dist)
+        log, rep.front_end = track_log_frames(log, images_dir, distortion=dist, progress=progress)
         rep.tracks = f"front-end on {images_dir.name}/"
         log = replace(log, ingest=rep.as_dict())
     return log, rep

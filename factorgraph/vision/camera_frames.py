@@ -82,6 +82,7 @@ class ImageFolder:
         self.files, self.n_keyframes = files, n_keyframes
         self.camera, self.skipped, self.folder = camera, skipped, folder
         self.bits = 8  # the data bits of 16-bit frames seen so far (10, 12, 14 or 16)
+        self.progress = None  # optional progress(k + 1, n_keyframes) after each keyframe
 
     def __len__(self) -> int:
         return self.n_keyframes
@@ -99,6 +100,12 @@ class ImageFolder:
         return (img >> (self.bits - 8)).astype(np.uint8)
 
     def __iter__(self) -> Iterator[tuple[int, np.ndarray | None]]:
+        for k, img in self._frames():
+            yield k, img
+            if self.progress is not None:
+                self.progress(k + 1, self.n_keyframes)
+
+    def _frames(self) -> Iterator[tuple[int, np.ndarray | None]]:
         import cv2
 
         for k in range(self.n_keyframes):

@@ -70,6 +70,7 @@ def track_log_frames(
     folder: str | Path,
     params: TrackParams | None = None,
     distortion: np.ndarray | None = None,
+    progress: Any = None,
 ) -> tuple[MeasurementLog, dict[str, Any]]:
     """Run the front-end on a log's frames and put its tracks in the log.
 
@@ -85,6 +86,9 @@ def track_log_frames(
     distortion : ndarray, optional
         The lens's OpenCV distortion coefficients (a field folder's ``camera.yaml``): the
         tracks come out in the pinhole camera's pixels (:func:`track_features`).
+    progress : callable, optional
+        ``progress(k, K)`` after each keyframe's frame is tracked (not called when the
+        stored tracks are reused).
 
     Returns
     -------
@@ -96,6 +100,7 @@ def track_log_frames(
         ``frames_skipped`` and ``rejected`` (by reason), ``same_as_log`` (bool).
     """
     frames = read_frames(folder, log.t, log.sensors.camera)
+    frames.progress = progress
     tr = track_features(
         frames, log.sensors.camera, params, odometry=log.odometry, distortion=distortion
     )

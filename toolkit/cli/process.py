@@ -67,6 +67,7 @@ def process_command(
             on_stage=on_stage,
             on_progress=on_progress,
             images=images,
+            on_frames=lambda k, n: on_progress(k, n, "ingest"),  # the front-end's frames
         )
     cert = res.summary["certificate"]
     table = Table(title=f"glacimap process — seed {res.summary['seed']} — {res.out}")
@@ -111,7 +112,7 @@ TRACK_SECONDS_PER_FRAME = (0.16, 0.37)
 
 
 def _say_frames(console: Console, log_dir: Path) -> None:
-    """Before the (long, bar-less) ingest: how many frames the front-end will track."""
+    """Before the ingest: how many frames the front-end will track, and about how long."""
     stamps = log_dir / "images" / "timestamps.csv"
     if not stamps.is_file():
         return
