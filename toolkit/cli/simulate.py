@@ -100,9 +100,24 @@ def _simulate_images(scenario, truth, plan, scene: str, images_dir: Path):
             "default survey's; set \\[site] bounds to a rover-sized window or fewer "
             "\\[plan] n_swaths for a shorter run[/yellow]"
         )
-    with console.status(f"rendering and tracking {plan.path_length:.0f} m ({scene})..."):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+    ) as bar:
+        task = bar.add_task(f"rendering and tracking ({scene})", total=round(frames))
         run = simulate_images(
-            truth, plan, sensors, int(scenario["seed"]), SCENES[scene], images_dir=images_dir
+            truth,
+            plan,
+            sensors,
+            int(scenario["seed"]),
+            SCENES[scene],
+            images_dir=images_dir,
+            progress=lambda k, n: bar.update(task, total=n, completed=k),
         )
     tr = run.tracks
     console.print(
