@@ -44,8 +44,8 @@ def read_log_folder(log_dir: Path, images: bool = True):
     if (log_dir / "survey.json").is_file():
         from factorgraph.field import read_field_log
 
-        with console.status("reading the field folder (and tracking its frames, if any)..."):
-            log, report = read_field_log(log_dir, images=images)
+        with _frames_bar() as progress:  # counts the frames when the front-end tracks them
+            log, report = read_field_log(log_dir, images=images, progress=progress)
         for line in report.lines():
             console.print(line)
         return log
@@ -144,13 +144,41 @@ def _print_front_end(record: dict) -> None:
     )
 
 
+def _frames_bar():
+    """A context giving ``progress(k, K)`` that draws a bar of frames tracked (nothing is
+    drawn when it is never called: stored tracks reused, or no frames)."""
+    from contextlib import contextmanager
+
+    @contextmanager
+    def bar():
+        with Progress(
+            "[progress.description]{task.description}",
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=console,
+            transient=True,
+        ) as p:
+            task = None
+
+            def progress(k: int, n: int) -> None:
+                nonlocal task
+                if task is None:
+                    task = p.add_task("front-end: frames tracked", total=n)
+                p.update(task, total=n, completed=k)
+
+            yield progress
+
+    return bar()
+
+
 def _track_images(log, folder: Path):
     """``log`` with its observations from the front-end run on ``folder``'s frames, and
     what the front-end did for ``localize_summary.json`` (:func:`track_log_frames`)."""
     from factorgraph.vision import track_log_frames
 
-    with console.status(f"tracking features in the frames of {folder}..."):
-        log, record = track_log_frames(log, folder)
+    with _frames_bar() as progress:
+        log, record = track_log_frames(log, folder, progress=progress)
     _print_front_end(record)
     return log, record
 
