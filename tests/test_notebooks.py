@@ -22,6 +22,7 @@ NOTEBOOKS = (
     "05_export_report",
     "06_change",
     "07_process_field",
+    "08_camera_frames",
 )
 # First-party packages plus the libraries their public API returns or that read the products.
 ALLOWED_IMPORTS = {
