@@ -218,6 +218,8 @@ def test_run_with_camera_images_processes_the_rendered_frames(tmp_path):
     sim = cert["localization"]["simulation"]
     assert 0 < sim["landmark_nees_mean"] < 20 and sim["landmark_within_2sigma"] > 0.5
     assert sim["landmark_rmse_3d_m"] > 0
+    html = (out / "report.html").read_text()  # the report says where the tracks came from
+    assert 'id="ingest"' in html and "camera front-end on images/" in html
     _ok(["run", "--config", toml, "--out", out])
     cert = json.loads((out / "certificate.json").read_text())
     assert cert["ingest"]["tracks"] == "tracks.csv" and not cert["ingest"]["front_end"]
