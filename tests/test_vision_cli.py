@@ -224,3 +224,21 @@ def test_run_with_camera_images_processes_the_rendered_frames(tmp_path):
     cert = json.loads((out / "certificate.json").read_text())
     assert cert["ingest"]["tracks"] == "tracks.csv" and not cert["ingest"]["front_end"]
     assert not (out / "field" / "rover" / "images").exists()
+
+
+def test_process_names_the_frames_it_will_track_from_the_manifest(tmp_path):
+    """The pre-ingest estimate reads the frames folder survey.json names (not only images/)."""
+    from rich.console import Console
+
+    from toolkit.cli.process import _say_frames
+
+    (tmp_path / "survey.json").write_text(json.dumps({"images": "cam"}))
+    (tmp_path / "cam").mkdir()
+    rows = "\n".join(f"{2.0 * k},f{k}.png" for k in range(600))
+    (tmp_path / "cam" / "timestamps.csv").write_text("t_s,file\n" + rows + "\n")
+    console = Console(width=200)
+    with console.capture() as cap:
+        _say_frames(console, tmp_path)
+    out = cap.get()
+    assert "600 to track with the OpenCV front-end" in out and "cam" in out
+    assert "about 2-4 min" in out  # 600 x 0.16-0.37 s

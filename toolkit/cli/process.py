@@ -113,7 +113,14 @@ TRACK_SECONDS_PER_FRAME = (0.16, 0.37)
 
 def _say_frames(console: Console, log_dir: Path) -> None:
     """Before the ingest: how many frames the front-end will track, and about how long."""
-    stamps = log_dir / "images" / "timestamps.csv"
+    import json
+
+    folder = "images"
+    try:  # a field folder's survey.json may name another frames folder
+        folder = str(json.loads((log_dir / "survey.json").read_text()).get("images", folder))
+    except (OSError, ValueError, AttributeError):
+        pass  # no manifest, or one the reader will refuse with its own message
+    stamps = log_dir / folder / "timestamps.csv"
     if not stamps.is_file():
         return
     n = max(sum(1 for _ in stamps.open()) - 1, 0)
