@@ -209,3 +209,15 @@ def test_simulated_control_modes(dem, stopped):
     ]:
         with pytest.raises(InputError, match=match):
             simulated_control(_scenario(n, mode), dem, log, p)
+
+
+def test_corner_stops_on_a_single_swath_are_refused_when_the_scenario_loads():
+    """One straight swath has two ends, not four corners: refused before any simulation
+    (a run with rendered frames would otherwise fail minutes later)."""
+    from terrain.errors import InputError
+    from toolkit.config import load_scenario
+
+    with pytest.raises(InputError, match=r"control\.n_targets") as err:
+        load_scenario(overrides={"plan": {"n_swaths": 1}, "control": {"n_targets": 4}})
+    assert "n_swaths" in str(err.value)
+    assert load_scenario(overrides={"plan": {"n_swaths": 1}})["control"]["n_targets"] == 0

@@ -249,6 +249,13 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         raise bad_input(
             "control.mode", scenario["control"]["mode"], "stops|targets|both", 'mode = "stops"'
         )
+    if int(scenario["control"]["n_targets"]) and int(scenario["plan"]["n_swaths"]) < 2:
+        raise bad_input(  # one straight swath has 2 ends, not 4 corners to stand on
+            "control.n_targets",
+            scenario["control"]["n_targets"],
+            "0 with a single swath (control stops stand on the survey's corners or turns)",
+            "survey 2 or more swaths ([plan] n_swaths), or n_targets = 0",
+        )
     _check_field(scenario)
     _check_models(scenario)
     from .epochs import check_change  # [change]: the second epoch's values

@@ -124,8 +124,16 @@ def simulated_control(scenario: dict[str, Any], truth, log: MeasurementLog, plan
         log, targets, _ = simulate_targets(log, truth, sigma_m=sigma, seed=seed)
         parts.append(targets)
     if mode in ("stops", "both"):
+        corners = path_corners(log)
+        if len(set(corners.tolist())) < len(corners):  # a single straight swath
+            raise bad_input(
+                "control.n_targets",
+                n,
+                f"a path with 4 distinct corners (the nearest keyframes: {corners.tolist()})",
+                "survey 2 or more swaths ([plan] n_swaths), or n_targets = 0",
+            )
         log, stops, _ = simulate_control(
-            log, path_corners(log), sigma_m=sigma, centring_sigma_m=0.02, seed=seed
+            log, corners, sigma_m=sigma, centring_sigma_m=0.02, seed=seed
         )
         parts.append(stops)
     if len(parts) == 1:
