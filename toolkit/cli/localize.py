@@ -9,11 +9,11 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 from rich.table import Table
 
 from terrain.errors import InputError, bad_input
 
+from ._progress import count_bar
 from .simulate import FORMATS
 
 console = Console()
@@ -151,14 +151,7 @@ def _frames_bar():
 
     @contextmanager
     def bar():
-        with Progress(
-            "[progress.description]{task.description}",
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            console=console,
-            transient=True,
-        ) as p:
+        with count_bar(console, transient=True) as p:
             task = None
 
             def progress(k: int, n: int) -> None:
@@ -264,13 +257,7 @@ def localize_command(
     if not field and images and (log_dir / "images").is_dir():
         log, front_end = _track_images(log, log_dir / "images")
     out_dir = ensure_writable_dir(out)
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=console,
-    ) as bar:
+    with count_bar(console) as bar:
         task = bar.add_task("iSAM2 keyframes", total=log.n_keyframes)
         loc = localize_log(log, scenario, progress=lambda k, n: bar.update(task, completed=k))
     sel = select_samples(loc, scenario)

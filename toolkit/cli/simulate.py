@@ -12,6 +12,8 @@ from rich.table import Table
 
 from terrain.errors import InputError, bad_input
 
+from ._progress import count_bar
+
 console = Console()
 
 #: Formats of the log tables (factorgraph.log.write_log), and "field": the files a rover brings
@@ -100,15 +102,7 @@ def _simulate_images(scenario, truth, plan, scene: str, images_dir: Path):
             "default survey's; set \\[site] bounds to a rover-sized window or fewer "
             "\\[plan] n_swaths for a shorter run[/yellow]"
         )
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
-
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=console,
-    ) as bar:
+    with count_bar(console) as bar:
         task = bar.add_task(f"rendering and tracking ({scene})", total=round(frames))
         run = simulate_images(
             truth,

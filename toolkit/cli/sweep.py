@@ -7,11 +7,12 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 from rich.table import Table
 
 from survey.sweep import PATTERNS, SweepConfig, class_limits, sweep
 from terrain.errors import bad_input
+
+from ._progress import count_bar
 
 console = Console()
 
@@ -82,13 +83,7 @@ def sweep_command(
         fit_hyperparameters=fit,
         seed=seed,
     )
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=console,
-    ) as bar:
+    with count_bar(console) as bar:
         task = bar.add_task("sweep tasks", total=None)
 
         def progress(done: int, total: int) -> None:
