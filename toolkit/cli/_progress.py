@@ -1,10 +1,17 @@
 """Shared pieces of the pipeline commands (``run``, ``process``): a progress bar per stage and
-the certificate's summary rows."""
+the certificate's summary rows.
+
+On a terminal the bars are rich's. Anywhere else (a log file, ``nohup``, a batch job, CI) rich
+draws a live display only when it stops, so an hour-long image run printed nothing until its
+end; there :class:`LineProgress` prints plain, timestamped lines instead.
+"""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Any
 
 from rich.console import Console
@@ -12,8 +19,99 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 
-def count_bar(console: Console, transient: bool = False) -> Progress:
-    """One counting bar: description, bar, ``k/n``, elapsed time (frames, keyframes, tasks)."""
+@dataclass
+class _LineTask:
+    description: str
+    total: float | None
+    completed: float = 0.0
+    started: float | None = None  # the clock at its start (s)
+    last_line: float = 0.0  # when its last line was printed
+    last_step: int = 0  # the last tenth of the total printed
+    done: bool = False
+
+
+@dataclass
+class LineProgress:
+    """Progress as plain lines, for a console that is not a terminal.
+
+    The subset of :class:`rich.progress.Progress` the commands use (``add_task``,
+    ``start_task``, ``update``, a context manager). A task prints a line when it starts,
+    when its count passes each tenth of its total or ``every_s`` seconds after its last line,
+    and once when it completes, with the elapsed time::
+
+        06:21:04 simulate: started
+        06:21:40 simulate: 139/1386 (36 s)
+        06:27:02 simulate: done (358 s)
+    """
+
+    console: Console
+    every_s: float = 60.0
+    min_gap_s: float = 10.0
+    done_at_total: bool = True  # False: "done" only from finish() (a stage's end)
+    clock: Callable[[], float] = time.monotonic  # seconds; a test passes its own
+    tasks: list[_LineTask] = field(default_factory=list)
+
+    def __enter__(self) -> LineProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def _say(self, task: _LineTask, text: str) -> None:
+        stamp = time.strftime("%H:%M:%S")
+        self.console.print(f"{stamp} {task.description}: {text}", markup=False, highlight=False)
+        task.last_line = self.clock()
+
+    def add_task(self, description: str, total: float | None = None, start: bool = True) -> int:
+        self.tasks.append(_LineTask(str(description).strip(), total))
+        if start:
+            self.start_task(len(self.tasks) - 1)
+        return len(self.tasks) - 1
+
+    def finish(self, task_id: int) -> None:
+        """Its "done" line, with the time since it started (once)."""
+        task = self.tasks[task_id]
+        self.start_task(task_id)
+        if not task.done:
+            task.done = True
+            self._say(task, f"done ({self.clock() - (task.started or 0.0):.0f} s)")
+
+    def start_task(self, task_id: int) -> None:
+        task = self.tasks[task_id]
+        if task.started is None:
+            task.started = self.clock()
+            self._say(task, "started")
+
+    def update(
+        self, task_id: int, total: float | None = None, completed: float | None = None
+    ) -> None:
+        task = self.tasks[task_id]
+        self.start_task(task_id)
+        if total is not None:
+            task.total = total
+        if completed is not None:
+            task.completed = completed
+        if task.done:
+            return
+        elapsed = self.clock() - (task.started or 0.0)
+        if self.done_at_total and task.total and task.completed >= task.total:
+            self.finish(task_id)
+            return
+        if not task.completed:
+            return
+        step = int(10 * task.completed / task.total) if task.total else task.last_step
+        since = self.clock() - task.last_line
+        if (step > task.last_step and since >= self.min_gap_s) or since >= self.every_s:
+            task.last_step = max(step, task.last_step)
+            of = f"/{task.total:.0f}" if task.total else ""
+            self._say(task, f"{task.completed:.0f}{of} ({elapsed:.0f} s)")
+
+
+def count_bar(console: Console, transient: bool = False) -> Progress | LineProgress:
+    """One counting bar: description, bar, ``k/n``, elapsed time (frames, keyframes, tasks);
+    plain lines (:class:`LineProgress`) when ``console`` is not a terminal."""
+    if not console.is_terminal:
+        return LineProgress(console)
     return Progress(
         "[progress.description]{task.description}",
         BarColumn(),
@@ -30,14 +128,19 @@ def stage_progress(
 ) -> Iterator[tuple[Callable[[str, str], None], Callable[[int, int], None]]]:
     """Yield ``(on_stage, on_progress)`` callbacks driving one bar per stage
     (``on_progress(k, K, stage="localize")``: ``k`` of ``K`` done in ``stage``)."""
-    with Progress(
-        TextColumn("{task.description:<12}"),
-        BarColumn(),
-        TextColumn("{task.completed:>5.0f}/{task.total:<5.0f}"),
-        TimeElapsedColumn(),
-        console=console,
-        transient=False,
-    ) as bar:
+    bar: Progress | LineProgress = (
+        Progress(
+            TextColumn("{task.description:<12}"),
+            BarColumn(),
+            TextColumn("{task.completed:>5.0f}/{task.total:<5.0f}"),
+            TimeElapsedColumn(),
+            console=console,
+            transient=False,
+        )
+        if console.is_terminal
+        else LineProgress(console, done_at_total=False)  # a stage is done when it ends
+    )
+    with bar:
         tasks = {s: bar.add_task(s, total=1, start=False) for s in stages}
 
         def on_stage(name: str, state: str) -> None:
@@ -45,6 +148,8 @@ def stage_progress(
                 return
             if state == "start":
                 bar.start_task(tasks[name])
+            elif isinstance(bar, LineProgress):
+                bar.finish(tasks[name])
             else:
                 bar.update(tasks[name], completed=bar.tasks[tasks[name]].total)
 

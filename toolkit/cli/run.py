@@ -67,7 +67,7 @@ def run_command(
             overrides,
             on_stage=on_stage,
             on_progress=on_progress,
-            on_frames=lambda k, n: on_progress(k, n, "simulate"),  # rendered frames
+            on_frames=_frames_hook(console, on_progress),
         )
     s, cert = res.summary, res.summary["certificate"]
     table = Table(title=f"glacimap run — seed {s['seed']} — {res.out}")
@@ -82,3 +82,20 @@ def run_command(
         table.add_row(f"time: {name} (s)", f"{t:.1f}")
     console.print(table)
     print_warnings(console, cert)
+
+
+def _frames_hook(console: Console, on_progress):
+    """``on_frames(k, K)`` for ``[field] camera = "images"``: the frame count and time estimate
+    on the first rendered frame (the plan is made inside the run), then the simulate bar."""
+    from .simulate import say_image_frames
+
+    said = False
+
+    def on_frames(k: int, n: int) -> None:
+        nonlocal said
+        if not said:
+            said = True
+            say_image_frames(console, n)
+        on_progress(k, n, "simulate")
+
+    return on_frames

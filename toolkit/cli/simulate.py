@@ -84,14 +84,9 @@ DEFAULT_SURVEY_FRAMES = 1386
 IMAGE_FRAMES_WARN = 2 * DEFAULT_SURVEY_FRAMES
 
 
-def _simulate_images(scenario, truth, plan, scene: str, images_dir: Path):
-    """The log of ``plan`` seen through rendered frames (written into ``images_dir``) and
-    tracked by the default front-end (:func:`factorgraph.vision.simulate_images`)."""
-    from factorgraph.sensors import SensorSuite
-    from factorgraph.vision import SCENES, simulate_images, vision_sensors
-
-    sensors = vision_sensors(SensorSuite.from_dict(scenario["sensors"]))
-    frames = plan.path_length / (sensors.speed_mps * sensors.keyframe_dt_s)
+def say_image_frames(console: Console, frames: float) -> None:
+    """Before rendering: how many frames, about how long, and a warning past twice the
+    default survey's (``glacimap simulate`` and ``glacimap run --camera images``)."""
     # ~0.45 s per 640 x 480 frame to render and track on one of the 2 reference cores
     # (docs/vision.md: 1,386 frames in 11.8 min at load 6-9, 9.9 min at load 2-7)
     minutes = frames * IMAGE_SECONDS_PER_FRAME / 60.0
@@ -102,6 +97,17 @@ def _simulate_images(scenario, truth, plan, scene: str, images_dir: Path):
             "default survey's; set \\[site] bounds to a rover-sized window or fewer "
             "\\[plan] n_swaths for a shorter run[/yellow]"
         )
+
+
+def _simulate_images(scenario, truth, plan, scene: str, images_dir: Path):
+    """The log of ``plan`` seen through rendered frames (written into ``images_dir``) and
+    tracked by the default front-end (:func:`factorgraph.vision.simulate_images`)."""
+    from factorgraph.sensors import SensorSuite
+    from factorgraph.vision import SCENES, simulate_images, vision_sensors
+
+    sensors = vision_sensors(SensorSuite.from_dict(scenario["sensors"]))
+    frames = plan.path_length / (sensors.speed_mps * sensors.keyframe_dt_s)
+    say_image_frames(console, frames)
     with count_bar(console) as bar:
         task = bar.add_task(f"rendering and tracking ({scene})", total=round(frames))
         run = simulate_images(
