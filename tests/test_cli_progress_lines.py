@@ -79,3 +79,29 @@ def test_descriptions_are_not_read_as_markup() -> None:
     bar = LineProgress(Console(file=buf))
     bar.add_task("rendering and tracking [sunny_snow]", total=1)
     assert "[sunny_snow]" in buf.getvalue()
+
+
+def test_a_standard_without_a_class_says_why() -> None:
+    """`paper class None` told a user nothing; the verdict's note says why (found on a
+    1 m contour interval, which is not in the paper's Tables I-III)."""
+    from rich.table import Table
+
+    from toolkit.cli._progress import certificate_rows
+
+    table = Table()
+    table.add_column("q")
+    table.add_column("v")
+    cert = {
+        "verdicts": [
+            {"standard": "paper", "class": None, "passed": None, "notes": ["1 m is [off]"]},
+            {"standard": "asprs2014", "class": None, "passed": False, "notes": ["NVA 6 m"]},
+            {"standard": "nmas", "class": "NMAS", "passed": True, "notes": []},
+        ]
+    }
+    certificate_rows(table, cert)
+    buf = io.StringIO()
+    Console(file=buf, width=200).print(table)
+    out = buf.getvalue()
+    assert "- (1 m is [off])" in out
+    assert "None (not met: NVA 6 m)" in out
+    assert "NMAS" in out

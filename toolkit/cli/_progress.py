@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -195,13 +196,14 @@ def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
         cls = str(v.get("class"))
         if v.get("passed") is False and v.get("notes"):  # a class named but not met
             cls += f" (not met: {v['notes'][0]})"
-        table.add_row(f"{v['standard']} class", cls)
+        elif v.get("passed") is None and v.get("class") is None and v.get("notes"):
+            cls = f"- ({v['notes'][0]})"  # no class to judge (NSSDA reports; a CI off-table)
+        table.add_row(f"{v['standard']} class", escape(cls))  # notes may hold [brackets]
 
 
 def print_warnings(console: Console, cert: dict[str, Any]) -> None:
     """The certificate's warnings (e.g. a dominant bias), one line each."""
-    from rich.markup import escape  # messages name TOML tables, e.g. [prior]
-
+    # escape: messages name TOML tables, e.g. [prior]
     for w in cert.get("warnings", []):
         console.print(f"[yellow]warning:[/] {escape(str(w))}")
     held = cert.get("heldout_calibration") or {}
