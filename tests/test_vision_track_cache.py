@@ -125,6 +125,29 @@ def test_a_changed_frame_or_a_broken_file_is_tracked_again(run, tmp_path):
     assert load_tracks(frames, cam, TrackParams(), log.odometry) == (None, "no stored tracks")
 
 
+def test_reused_tracks_carry_the_frame_skips_counted_when_they_were_made(run, tmp_path):
+    """Skips counted while frames are read (an unreadable file) were 0 when the stored
+    tracks were reused, since no frame is read then: the report said nothing was skipped."""
+    import shutil
+
+    from factorgraph.vision.track_cache import save_tracks
+
+    r, root = run
+    log = read_log(root / "log")
+    cam = log.sensors.camera
+    images = tmp_path / "images"
+    shutil.copytree(root / "images", images)
+    (images / "frame_000005.png").write_bytes(b"not a PNG")
+    first = read_frames(images, log.t, cam)
+    tr = track_features(first, cam, odometry=log.odometry)
+    assert tr.source.startswith("tracked") and first.skipped["unreadable"] == 1
+    save_tracks(images, tr, first, cam, log.odometry)
+    again = read_frames(images, log.t, cam)
+    reused = track_features(again, cam, odometry=log.odometry)
+    assert reused.source.startswith("reused") and _same(reused, tr)
+    assert dict(again.skipped) == dict(first.skipped)  # {"unreadable": 1}, as when tracked
+
+
 def test_a_distorting_lens_is_undistorted_inside_the_front_end(run, tmp_path):
     """Frames through a barrel lens (k1 = -0.3: the image corner is 76 px out of the pinhole
     frame), tracked with the lens's coefficients: the tracks are in the pinhole camera's

@@ -43,6 +43,10 @@ __all__ = ["TRACKS_FILE", "inputs_digest", "load_tracks", "save_tracks"]
 
 TRACKS_FILE = "tracks.npz"
 _FORMAT = "glacimap-tracks/1"
+#: Frame skips an :class:`ImageFolder` counts only while its frames are read. Reused tracks
+#: read no frame, so they carry the counts of the run that stored them (the digest covers
+#: every file and its bytes, so those counts are this folder's).
+_READ_SKIPS = ("missing_file", "unreadable", "wrong_size", "keyframe_without_frame")
 
 
 #: The modules whose source decides the tracks (their bytes are part of the digest).
@@ -113,6 +117,7 @@ def save_tracks(
         "params": asdict(tracks.params),
         "counts": dict(tracks.counts),
         "per_frame": tracks.per_frame,
+        "frames_skipped": {r: int(frames.skipped[r]) for r in _READ_SKIPS if frames.skipped[r]},
     }
     with atomic_path(Path(folder) / TRACKS_FILE) as tmp:
         with open(tmp, "wb") as fh:  # np.savez would append .npz to the temporary name
@@ -150,6 +155,8 @@ def load_tracks(
         frames, camera, params, odometry, distortion
     ):
         return None, "inputs differ"
+    for reason, n in meta.get("frames_skipped", {}).items():  # as if read (see _READ_SKIPS)
+        frames.skipped[reason] = int(n)
     source = f"reused {path} (inputs sha256 {meta['digest'][:12]})"
     counts = Counter(meta["counts"])
     ids, per_frame = lid.astype(int), meta["per_frame"]
