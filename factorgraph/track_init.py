@@ -159,8 +159,12 @@ def retry_failed_tracks(
         tracks.active.add(lid)
         recovered_views[lid] = views
         tracks.first_k[lid] = views[0][0]
-        last = pose(views[-1][0]).translation()
-        tracks.init_distance[lid] = float(np.linalg.norm(pt - last))
+        # The distance online initialisation would have recorded had the track passed at its
+        # first chance: from the pose of its min_views-th view (localize.py measures from the
+        # pose of the view that completes the track). The last view of a forward-looking
+        # camera is its nearest, which put retried tracks under the 5 m rule (select.py).
+        k_init = views[min(params.min_views, len(views)) - 1][0]
+        tracks.init_distance[lid] = float(np.linalg.norm(pt - pose(k_init).translation()))
         for online_reason in tracks.failed_reason.pop(lid):
             tracks.dropped[online_reason] -= 1
             if tracks.dropped[online_reason] == 0:

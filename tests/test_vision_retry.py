@@ -59,6 +59,24 @@ def test_retry_recovers_a_consistent_track_and_keeps_counting_a_bad_one():
     assert tracks.init_distance[5] == pytest.approx(np.linalg.norm(good_point - [4.0, 0, 0]))
 
 
+def test_retried_track_first_seen_distance_is_taken_at_its_min_views_th_view():
+    """The distance the 5 m selection rule reads (``first_seen_distance_m``) is measured, as
+    online, from the pose where the track could first be initialised: its ``min_views``-th
+    view. Before, the retry took its last view, the nearest for a forward-looking camera: on
+    the default survey 11 of 18 retried landmarks fell under the 5 m rule that way."""
+    camera, K, bTc, graph, values, poses = _pinned(5)  # keyframes at x = 0, 2, 4, 6, 8 m
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, camera.pixel_sigma_px)
+    point = np.array([14.0, 1.0, 0.0])  # 6 m ahead of the last keyframe
+    tracks = _Tracks()
+    tracks.failed[3], tracks.failed_reason[3] = _views(point, poses, K, bTc), ["reprojection_gate"]
+    tracks.dropped = Counter({"reprojection_gate": 1})
+    params = LocalizeParams()
+    retry_failed_tracks(graph, values, tracks, camera, bTc, K, noise, params)
+    third = np.array([2.0 * (params.min_views - 1), 0.0, 0.0])  # hand computation: x = 4 m
+    assert tracks.init_distance[3] == pytest.approx(np.linalg.norm(point - third), abs=1e-6)
+    assert tracks.init_distance[3] > np.linalg.norm(point - [8.0, 0.0, 0.0]) + 3.9
+
+
 def test_triangulate_track_gates():
     camera, K, bTc, _, _, poses, _ = _setup()
     params = LocalizeParams()
