@@ -27,6 +27,7 @@ from terrain.errors import bad_input
 
 from ..sensors import CameraModel
 from .frame_geometry import detection_mask, predict_motion, undistorter
+from .matching import match_descriptors
 
 __all__ = ["FeatureTracks", "TrackParams", "track_features"]
 
@@ -180,43 +181,6 @@ def _detect(img, det, params, mask=None):
     return pts, np.array([kp.response for kp in kps]), desc
 
 
-def _distances(a, b, binary: bool) -> np.ndarray:
-    """Descriptor distances (n_a, n_b): L2, or Hamming for binary descriptors."""
-    if binary:
-        bits = np.unpackbits(a[:, None, :] ^ b[None, :, :], axis=2)
-        return bits.sum(2).astype(np.float32)
-    a, b = a.astype(np.float32), b.astype(np.float32)
-    d2 = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * a @ b.T
-    return np.sqrt(np.clip(d2, 0, None))
-
-
-def _match(prev: _Frame, pts, cur_desc, params, counts, binary: bool, pred=None):
-    """Mutual ratio-test matches ``(i_prev, j_cur)``; with ``pred`` ((n_prev, 2) predicted
-    pixels, and a validity mask) only candidates inside the search window compete."""
-    if prev.desc is None or cur_desc is None or len(prev.desc) < 2 or len(cur_desc) < 2:
-        return np.zeros(0, int), np.zeros(0, int)
-    D = _distances(prev.desc, cur_desc, binary)
-    if pred is not None:
-        uv, valid = pred
-        radius = params.search_px + params.search_frac * np.linalg.norm(uv - prev.pts, axis=1)
-        far = np.linalg.norm(uv[:, None, :] - pts[None, :, :], axis=2) > radius[:, None]
-        far |= ~valid[:, None]
-        D[far] = np.inf
-    order = np.argsort(D, axis=1)[:, :2]
-    rows = np.arange(len(D))
-    best, second = D[rows, order[:, 0]], D[rows, order[:, 1]]
-    has = np.isfinite(best)
-    counts["no_candidate"] += int((~has).sum())
-    ratio_ok = has & (best < params.ratio * second)
-    counts["ratio_test"] += int((has & ~ratio_ok).sum())
-    ii = rows[ratio_ok]
-    jj = order[ratio_ok, 0]
-    back = np.argmin(D, axis=0)
-    mutual = back[jj] == ii
-    counts["not_mutual"] += int((~mutual).sum())
-    return ii[mutual], jj[mutual]
-
-
 def _verify(p0, p1, Kmat, params, counts) -> np.ndarray:
     """RANSAC on the essential matrix; boolean inlier mask."""
     import cv2
@@ -349,7 +313,7 @@ def track_features(
                 pred = None
                 if odometry is not None and prev_k == k - 1 and k - 1 < len(odometry):
                     pred = predict_motion(prev.pts, camera, np.asarray(odometry[k - 1], float))
-                ii, jj = _match(prev, pts, desc, params, counts, binary, pred)
+                ii, jj = match_descriptors(prev, pts, desc, params, counts, binary, pred)
                 stats["matches"] = int(ii.size)
                 ok = _verify(prev.pts[ii], pts[jj], Kmat, params, counts)
                 ids[jj[ok]] = prev.ids[ii[ok]]
