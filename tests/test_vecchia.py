@@ -188,3 +188,26 @@ def test_se_sum_inside_gaps_only_for_two_se_scales():
     assert not se_sum_inside_gaps("se+se", pair, None)
     assert not se_sum_inside_gaps("se", SquaredExponential(1.0, 12.0), 30.0)
     assert not se_sum_inside_gaps("matern52", Matern(1.0, 12.0, nu=2.5), 30.0)
+
+
+def test_kernel_search_threads_give_the_same_scores_bit_for_bit():
+    """The candidate families are fitted side by side in threads (session 11: the 50k fit
+    7.1 -> 4.4 s in a fresh process on glacier); one thread or three, the scores, the
+    choice and the refined kernel are the same numbers."""
+    from terrain import kernel_search
+
+    samples = _matern_draw(500)
+    X = samples.xy - samples.xy.mean(0)
+    r = samples.z - samples.z.mean()
+    kw = dict(fit_nugget=True, nugget=1e-4, nugget_bounds=(1e-6, 1.0), spacing=None)
+    runs = [
+        kernel_search.select_kernel(
+            X, r, samples.z_var, FAMILY, **kw, rng=np.random.default_rng(0), workers=w
+        )
+        for w in (1, 3)
+    ]
+    assert runs[0].name == runs[1].name
+    assert repr(runs[0].kernel) == repr(runs[1].kernel)
+    np.testing.assert_array_equal(runs[0].kernel.theta, runs[1].kernel.theta)
+    assert runs[0].nugget == runs[1].nugget
+    assert runs[0].scores == runs[1].scores  # every lml, BIC, CV score and evaluation count
