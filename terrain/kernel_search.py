@@ -422,10 +422,15 @@ def select_kernel(
             }
         )
     folds, block = _cv_folds(X, gap, spacing, rng)
-    for row in rows:
-        if row["bic"] is not None:
-            k, nug, _, _ = fits[row["name"]]
-            row.update(_cv_scores(k, nug, X, r, z_var, folds), cv_block_m=block)
+    scored = [row for row in rows if row["bic"] is not None]
+
+    def cv(row: dict[str, Any]) -> dict[str, float]:
+        k, nug, _, _ = fits[row["name"]]
+        return _cv_scores(k, nug, X, r, z_var, folds)
+
+    with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
+        for row, scores in zip(scored, pool.map(cv, scored), strict=True):
+            row.update(scores, cv_block_m=block)
     key = "bic" if criterion == "bic" else "cv_nlpd"
     ok = [r_ for r_ in rows if r_["bic"] is not None]
     if not ok:
