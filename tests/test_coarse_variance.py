@@ -50,3 +50,36 @@ def test_route_choice(fitted):
     assert variance_step(gp, fine, flops=0.0) == 1  # l/4 under two cells: no gain
     ds = gp.predict_grid(grid)
     assert ds["elevation_std"].shape == grid.shape
+
+
+def test_a_lattice_that_misses_the_variance_is_rejected_and_said():
+    """A rough kernel with a long scale (Matern 3/2, l = 300 m, as fitted on the glacier
+    DEM's 900-sample survey: l = 381 m) has sigma dipping within metres of the data, far
+    below l / 4: the spline from a 75-cell lattice was 190 % off there (session 11), so the
+    check rejects it and every cell is predicted exactly; the route says both."""
+    from terrain import Matern
+
+    rng = np.random.default_rng(3)
+    grid = Grid.from_bounds((0, 0, 240, 180), 1.0)
+    xy = np.column_stack([rng.uniform(0, 240, 600), np.repeat(np.linspace(15, 165, 4), 150)])
+    z = np.sin(xy[:, 0] / 20) * 3 + rng.normal(0, 0.05, len(xy))
+    samples = ElevationSamples(xy, z, 0.05**2, crs=grid.crs)
+    gp = TerrainGP(
+        kernel=Matern(40.0, 300.0, nu=1.5), optimize=False, nugget=1e-4, nugget_bounds="fixed"
+    ).fit(samples)
+    assert gp.method_ == "exact"  # below 1,000 samples
+    assert variance_step(gp, grid, flops=0.0) == 75.0
+    _, lattice_std = predict_coarse_variance(gp, grid, 75.0, check=True)
+    assert lattice_std is None and gp.lattice_check_["max_rel_error"] > 0.5
+    fine = Grid.from_bounds((0, 0, 240, 180), 0.5, grid.crs)
+    ds = gp.predict_grid(fine)  # 600^2 x 172,800 cells > 4e10: the lattice is tried
+    assert "rejected" in gp.predict_route_
+    _, s_ref = gp.predict(fine.xy(), return_std=True)
+    np.testing.assert_allclose(ds["elevation_std"].values.ravel(), s_ref, rtol=1e-12)
+
+
+def test_an_accepted_lattice_states_its_check(fitted):
+    grid, gp = fitted
+    gp.predict_grid(grid)
+    assert "checked at" in gp.predict_route_ and "rejected" not in gp.predict_route_
+    assert gp.lattice_check_["max_rel_error"] < 0.10
