@@ -23,7 +23,12 @@ from scipy.interpolate import RectBivariateSpline
 
 from .grid import Grid
 
-__all__ = ["LATTICE_FRACTION", "coarse_step", "predict_coarse_variance"]
+__all__ = [
+    "LATTICE_FRACTION",
+    "coarse_step",
+    "predict_checked_lattice",
+    "predict_coarse_variance",
+]
 
 LATTICE_FRACTION = 0.25  # lattice spacing / shortest length scale
 #: cells where the spline is checked against the exact 1-sigma, and the largest relative
@@ -101,6 +106,24 @@ def predict_coarse_variance(
         if rel.max() > CHECK_MAX_REL:
             return mean, None
     return mean, std_all
+
+
+def predict_checked_lattice(
+    gp: Any, grid: Grid, step: float, include_nugget: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`predict_coarse_variance` with its check; every cell exactly when the check
+    rejects the spline. Sets ``gp.predict_route_`` to what was done, in words."""
+    mean, std = predict_coarse_variance(gp, grid, step, include_nugget, check=True)
+    chk = gp.lattice_check_
+    route = (
+        f"exact mean; variance on a {step:.2g}-cell lattice, bicubic (checked at "
+        f"{chk['cells']} cells: largest error {100 * chk['max_rel_error']:.2g} %)"
+    )
+    if std is None:  # the spline missed its check: every cell exactly, and said so
+        mean, std = gp.predict(grid.xy(), return_std=True, include_nugget=include_nugget)
+        route = gp.predict_route_ + "; " + route.replace("bicubic", "rejected")
+    gp.predict_route_ = route
+    return mean, std
 
 
 def variance_step(gp: Any, grid: Grid, flops: float) -> float:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 
-from .coarse_variance import predict_coarse_variance, variance_step
+from .coarse_variance import predict_checked_lattice, variance_step
 from .errors import NotFittedError, bad_input
 from .gp_hyper import HyperparameterMixin
 from .gp_mean import GLS_MAX_SAMPLES, bind_mean, gls_coefficients, n_coef, variance_term
@@ -455,19 +455,10 @@ class TerrainGP(HyperparameterMixin):
 
             return predict_grid_dask(self, grid, chunks, include_nugget)
         step = variance_step(self, grid, EXACT_PREDICT_FLOPS)
-        std = None
-        if step > 1:  # exact mean, exact variance on a lattice (terrain/coarse_variance.py)
-            mean, std = predict_coarse_variance(self, grid, step, include_nugget, check=True)
-            chk = self.lattice_check_
-            self.predict_route_ = (
-                f"exact mean; variance on a {step:.2g}-cell lattice, bicubic (checked at "
-                f"{chk['cells']} cells: largest error {100 * chk['max_rel_error']:.2g} %)"
-            )
-        if std is None:
-            lattice = self.predict_route_ if step > 1 else ""
+        if step > 1:  # exact mean, variance on a checked lattice (terrain/coarse_variance.py)
+            mean, std = predict_checked_lattice(self, grid, step, include_nugget)
+        else:
             mean, std = self.predict(grid.xy(), return_std=True, include_nugget=include_nugget)
-            if lattice:  # the spline missed its check: every cell exactly, and said so
-                self.predict_route_ += "; " + lattice.replace("bicubic", "rejected")
         return terrain_dataset(
             grid, mean.reshape(grid.shape), std.reshape(grid.shape), self.provenance()
         )
