@@ -68,14 +68,14 @@ def predict_coarse_variance(
         Compare the spline with the exact 1-sigma at up to :data:`CHECK_CELLS` cells half
         way between lattice nodes (where it is least exact); ``std`` is ``None`` when the
         spline misses any of them by more than :data:`CHECK_MAX_REL` (the caller then
-        predicts every cell). ``gp.lattice_check_`` records the largest relative error.
+        predicts every cell; ``mean`` is then ``None`` too, not computed).
+        ``gp.lattice_check_`` records the largest relative error.
 
     Returns
     -------
-    mean, std : ndarray of shape ``grid.shape``, metres (``std`` None: lattice rejected)
+    mean, std : ndarray of shape ``grid.shape``, metres (both None: lattice rejected)
     """
     ny, nx = grid.shape
-    mean = gp.predict(grid.xy(), return_std=False).reshape(ny, nx)  # Alg. 2.1 line 4
     iy, ix = _lattice(ny, step), _lattice(nx, step)
     # Cell index -> coordinate is affine, so the lattice nodes are exact coordinates.
     xs = np.interp(ix, np.arange(nx), grid.x)
@@ -103,8 +103,9 @@ def predict_coarse_variance(
         )
         rel = np.abs(std_all[cy, cx] / np.maximum(exact, 1e-300) - 1.0)
         gp.lattice_check_ = {"cells": int(rel.size), "max_rel_error": float(rel.max())}
-        if rel.max() > CHECK_MAX_REL:
-            return mean, None
+        if rel.max() > CHECK_MAX_REL:  # rejected before the mean pass: no work thrown away
+            return None, None
+    mean = gp.predict(grid.xy(), return_std=False).reshape(ny, nx)  # Alg. 2.1 line 4
     return mean, std_all
 
 

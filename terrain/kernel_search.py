@@ -398,8 +398,8 @@ def select_kernel(
         }
 
     fits: dict[str, Any] = {}
-    workers = min(len(groups), workers if workers is not None else os.cpu_count() or 1)
-    with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
+    workers = max(1, min(len(groups), workers if workers is not None else os.cpu_count() or 1))
+    with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
         for out in pool.map(chain, groups):
             fits.update(out)
     rows = []
@@ -428,7 +428,7 @@ def select_kernel(
         k, nug, _, _ = fits[row["name"]]
         return _cv_scores(k, nug, X, r, z_var, folds)
 
-    with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
+    with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
         for row, scores in zip(scored, pool.map(cv, scored), strict=True):
             row.update(scores, cv_block_m=block)
     key = "bic" if criterion == "bic" else "cv_nlpd"
