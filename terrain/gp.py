@@ -23,8 +23,9 @@ from scipy.linalg import cho_solve, solve_triangular
 
 from .coarse_variance import predict_checked_lattice, variance_step
 from .errors import NotFittedError, bad_input
+from .exact_predict import predict_exact
 from .gp_hyper import HyperparameterMixin
-from .gp_mean import GLS_MAX_SAMPLES, bind_mean, gls_coefficients, n_coef, variance_term
+from .gp_mean import GLS_MAX_SAMPLES, bind_mean, gls_coefficients, n_coef
 from .gp_settings import check_settings
 from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
@@ -404,26 +405,19 @@ class TerrainGP(HyperparameterMixin):
             if return_std and include_nugget:
                 std = np.sqrt(std**2 + self.nugget_)
             return (mean, std) if return_std else mean
-        mean = np.empty(m)
-        std = np.empty(m) if return_std else None
-        step = self._chunk_rows()
-        for start in range(0, m, step):
-            sl = slice(start, min(start + step, m))
-            Xq = xy[sl] - self.X_offset_
-            Ks = self.kernel_(Xq, self.X_train_)  # (chunk, n)
-            # R&W Alg. 2.1 line 4: f* = m(x*) + k*^T alpha
-            mean[sl] = np.asarray(self.mean_(xy[sl]), dtype=float) + Ks @ self.alpha_
-            if return_std:
-                # Alg. 2.1 lines 5-6: v = L \ k*, V[f*] = k(x*, x*) - v^T v (diagonal only)
-                V = solve_triangular(
-                    self.L_, Ks.T, lower=True, check_finite=False, overwrite_b=True
-                )
-                var = self.kernel_.diag(Xq) - np.einsum("ij,ij->j", V, V)
-                if cov is not None:  # R&W Eq 2.42: the mean coefficients' uncertainty
-                    var += variance_term(self.mean_.basis(xy[sl]), cov, self.W_, V)
-                if include_nugget:
-                    var += self.nugget_
-                std[sl] = np.sqrt(np.maximum(var, 0.0))
+        Xq = xy - self.X_offset_
+        mean, std = predict_exact(
+            Xq,
+            self.X_train_,
+            self.L_,
+            self.alpha_,
+            self.kernel_,
+            self._chunk_rows(),
+            np.asarray(self.mean_(xy), dtype=float),
+            return_std,
+            extra_var=self.nugget_ if include_nugget else 0.0,
+            basis=None if cov is None else (lambda sl: self.mean_.basis(xy[sl]), cov, self.W_),
+        )
         return (mean, std) if return_std else mean
 
     @single_blas_thread
