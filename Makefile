@@ -38,6 +38,7 @@ bench: setup
 	$(BIN)/python benchmarks/emcee_posterior.py --out benchmarks/results/emcee_posterior.json
 	$(BIN)/python benchmarks/localization.py --out benchmarks/results/localization.json
 	$(BIN)/python benchmarks/real_terrain.py --out benchmarks/results/real_terrain.json
+	$(BIN)/python benchmarks/map_speed.py --out benchmarks/results/map_speed.json
 	$(BIN)/python benchmarks/change.py --pairs 50 --out benchmarks/results/change.json
 	$(BIN)/python benchmarks/ground_control.py --out benchmarks/results/ground_control.json
 	$(BIN)/python benchmarks/vision.py --out benchmarks/results/vision.json
