@@ -25,7 +25,7 @@ on plain snow; one stationary variance is too large for most of the map and too 
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -40,6 +40,7 @@ from .nogil_lapack import cholesky_lower, solve_lower
 
 __all__ = [
     "TileSpec",
+    "halo_for_gaps",
     "largest_gap",
     "local_amplitude",
     "long_scale_part",
@@ -53,6 +54,8 @@ AMPLITUDE_POINTS = 150
 AMPLITUDE_BOUNDS = (1e-3, 1e3)
 #: Cells per block of a tile's prediction.
 QUERY_CHUNK = 256
+#: Largest halo of the default tiles, m.
+MAX_HALO = 150.0
 
 
 @dataclass(frozen=True)
@@ -111,7 +114,7 @@ class TileSpec:
         """Defaults scaled to a (shortest) kernel length scale in metres."""
         ls = float(lengthscale)
         tile = float(np.clip(2.0 * ls, 16.0, 64.0))
-        return cls(tile=tile, blend=tile / 8.0, halo=float(np.clip(3.0 * ls, 10.0, 150.0)))
+        return cls(tile=tile, blend=tile / 8.0, halo=float(np.clip(3.0 * ls, 10.0, MAX_HALO)))
 
 
 def long_scale_part(kernel, halo: float):
@@ -123,6 +126,27 @@ def long_scale_part(kernel, halo: float):
         if float(np.min(p.lengths)) > halo and p.variance >= 0.1 * short.variance:
             return p
     return None
+
+
+def halo_for_gaps(spec: TileSpec, kernel, widest: float) -> TileSpec:
+    """``spec`` with the halo of its long-scale kernel part (three of that part's length
+    scales) when that part would otherwise leave a tile without data, the longer halo
+    reaches across the survey's widest gap and it is no more than :data:`MAX_HALO`; else
+    ``spec`` itself (a longer part keeps the exact route or the warning: tiles with a 150 m
+    halo and a 400 m Matérn part left the mean 0.35 m off the exact GP's in a 60 m gap).
+
+    The default halo is three *shortest* length scales. A kernel whose short part is faint
+    (precise samples: SE 15 m + SE 3.9 m carrying 1.6 % of the variance) gets a 12 m halo,
+    its 15 m part counts as long, and 18 m gaps sent 7,200 samples to the exact route
+    (docs/terrain.md "Performance notes"). Sized by the long part, the tiles see the data
+    that part needs and match the exact GP (measured there: 1-sigma within 1 %, RMSE 0.0724
+    against 0.0722 m; a halo of just the widest gap left the mean 0.4 m off in places).
+    """
+    long_part = long_scale_part(kernel, spec.halo)
+    if long_part is None or widest <= spec.halo:
+        return spec
+    halo = 3.0 * float(np.min(long_part.lengths))
+    return replace(spec, halo=halo) if widest <= halo <= MAX_HALO else spec
 
 
 def largest_gap(xy: np.ndarray, n_side: int = 100) -> float:

@@ -178,3 +178,51 @@ def test_largest_gap_hand_computed():
     # cell centres run from 0.5 to 99.5 m: the farthest is (0.5, 99.5) or (99.5, 0.5),
     # at hypot(0.5, 99.5) = 99.501 m from (0, 0) and hypot(99.5, 0.5) from (100, 100).
     assert gap == pytest.approx(np.hypot(0.5, 99.5), rel=1e-9)
+
+
+def test_a_faint_short_part_gets_the_long_parts_halo():
+    # Precise samples picked SE 15 m + a faint SE 3.9 m (docs/terrain.md "Performance notes"):
+    # the default halo (3 x 3.9 m) is narrower than the 18 m gaps, so the 15 m part is "long"
+    # and the fit went to the exact route. The halo of the long part (3 x 15 m) holds it.
+    from terrain import SquaredExponential
+    from terrain.tiled import MAX_HALO, halo_for_gaps, long_scale_part, shortest_lengthscale
+
+    kernel = SquaredExponential(0.18, 15.0) + SquaredExponential(0.003, 3.9)
+    spec = TileSpec.for_lengthscale(shortest_lengthscale(kernel))
+    assert spec.halo == pytest.approx(11.7) and long_scale_part(kernel, spec.halo) is not None
+    grown = halo_for_gaps(spec, kernel, widest=18.0)
+    assert grown.halo == pytest.approx(45.0)  # hand: 3 x 15 m
+    assert (grown.tile, grown.blend, grown.max_points) == (spec.tile, spec.blend, spec.max_points)
+    assert halo_for_gaps(spec, kernel, widest=50.0) is spec  # 45 m cannot reach: unchanged
+    assert halo_for_gaps(spec, kernel, widest=10.0) is spec  # data within the halo already
+    single = SquaredExponential(0.18, 15.0)
+    assert halo_for_gaps(TileSpec.for_lengthscale(15.0), single, widest=40.0).halo == 45.0
+    # a part longer than MAX_HALO / 3 cannot be held by tiles: unchanged (exact or a warning)
+    very_long = SquaredExponential(50.0, 400.0) + SquaredExponential(1.0, 10.0)
+    spec = TileSpec.for_lengthscale(10.0)
+    assert halo_for_gaps(spec, very_long, widest=40.0) is spec
+    edge = SquaredExponential(5.0, MAX_HALO / 3) + SquaredExponential(1.0, 10.0)
+    assert halo_for_gaps(spec, edge, widest=40.0).halo == pytest.approx(MAX_HALO)
+
+
+def test_precise_samples_with_a_faint_short_part_tile_and_match_the_exact_gp():
+    from terrain import SquaredExponential
+
+    rng = np.random.default_rng(7)
+    # three 40 m wide bands 60 m apart: gaps of 20 m, wider than 3 x 3 m
+    xy = np.vstack([np.column_stack([rng.uniform(0, 200, 700), y0 + rng.uniform(-20, 20, 700)])
+                    for y0 in (30.0, 90.0, 150.0)])  # fmt: skip
+    z = np.sin(xy[:, 0] / 15) + np.cos(xy[:, 1] / 13) + rng.normal(0, 0.01, len(xy))
+    samples = ElevationSamples(xy, z, 0.01**2)
+    kernel = SquaredExponential(0.5, 14.0) + SquaredExponential(0.005, 3.0)
+    kw = dict(kernel=kernel, mean="constant", optimize=False, nugget=0.0, nugget_bounds="fixed")
+    auto = TerrainGP(**kw).fit(samples)  # the default: was the exact route (3 x 3 m halo)
+    assert auto.method_ == "tiled" and auto.tiles_.halo == pytest.approx(42.0)  # 3 x 14 m
+    # the same tiles without per-tile amplitudes approximate the exact GP
+    tiled = TerrainGP(method="tiled", local_amplitude=False, **kw).fit(samples)
+    assert tiled.tiles_ == auto.tiles_
+    exact = TerrainGP(method="exact", **kw).fit(samples)
+    grid = Grid.from_bounds((0, 0, 200, 180), 4.0)
+    a, b = tiled.predict_grid(grid), exact.predict_grid(grid)
+    assert np.abs(a.elevation - b.elevation).max() < 0.02
+    assert np.allclose(a.elevation_std, b.elevation_std, rtol=0.03)
