@@ -71,6 +71,8 @@ FAMILY = (
 #: with |lml| ~ 500-3000 nats it stops within ~0.01-0.03 nats, far inside BIC_TIE. Measured on
 #: four real DEMs at 50k: the same picks, BICs within 0.3, fit CPU -13 to -19 % (1e-7 before).
 SCREEN_FTOL = 1e-5
+#: Pieces of each likelihood evaluation of the refine, evaluated over threads.
+REFINE_PARTS = 2
 #: Mean-square differentiability of each part (Matérn nu; SE: infinitely smooth).
 _SMOOTHNESS = {"se": np.inf, "matern32": 1.5, "matern52": 2.5, "matern72": 3.5}
 #: BIC margin below which the evidence is not "strong" (Kass & Raftery 1995: 2-6 positive,
@@ -168,6 +170,7 @@ class _Search:
         self.fit_nugget, self.nugget = fit_nugget, float(nugget)
         self.nugget_bounds = nugget_bounds
         self.plan = VecchiaPlan.build(X, m, rng)
+        self.pool, self.parts = None, 1  # the refine's single chain: REFINE_PARTS in threads
         extent = float(np.ptp(X, axis=0).max()) or 1.0
         var = float(np.var(r)) or 1.0
         self.var = var
@@ -189,8 +192,9 @@ class _Search:
 
     def lml(self, kernel, nugget, grad=False):
         nv = self.z_var + nugget
+        nug = nugget if self.fit_nugget else None
         return vecchia_lml(
-            kernel, self.X, self.r, nv, self.plan, grad, nugget if self.fit_nugget else None
+            kernel, self.X, self.r, nv, self.plan, grad, nug, pool=self.pool, parts=self.parts
         )
 
     def part(self, name, v, ls):
@@ -458,7 +462,11 @@ def select_kernel(
     k, nug, _, _ = fits[best["name"]]
     # Refine the winner on larger conditioning sets (closer to the exact Eq 9).
     refine = _Search(*args, m_refine, rng, 1e-7)
-    with threadpool_limits(1):
+    # One chain now: each likelihood's rows go in REFINE_PARTS pieces over the threads (the
+    # pieces, not the thread count, fix the bits; measured: docs/terrain.md).
+    refine.parts = REFINE_PARTS
+    with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
+        refine.pool = pool if workers > 1 else None
         fine = refine.optimize(k, nug)
     if fine is not None:
         k, nug, lml, nfev = fine

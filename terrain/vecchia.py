@@ -23,6 +23,7 @@ positions [0, b) for their m nearest (any set of earlier samples is a valid Vecc
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -140,6 +141,8 @@ def vecchia_lml(
     eval_gradient: bool = False,
     nugget: float | None = None,
     batch: int = 4096,
+    pool: Executor | None = None,
+    parts: int = 1,
 ) -> float | tuple[float, np.ndarray]:
     """Vecchia log marginal likelihood of residuals ``r`` (Eq 9, approximated).
 
@@ -163,6 +166,11 @@ def vecchia_lml(
         The nugget inside ``noise_var``.
     batch : int
         Conditionals evaluated per batch (memory: batch x (m+1)^2 x n_params doubles).
+    pool : Executor, optional
+        Threads to evaluate the pieces on (numpy's batched solves release the GIL).
+    parts : int
+        Each batch is cut into this many pieces, summed in order; the value depends on
+        ``parts`` (the order of the float sums), not on ``pool``.
 
     Raises
     ------
@@ -175,49 +183,22 @@ def vecchia_lml(
     out = gaussian_lml(kernel, X[head], r[head], noise_var[head], eval_gradient, True, nugget)
     lml, grad = out if eval_gradient else (out, None)
     tail = plan.order[m:]
-    iu, ju = _upper(m + 1)
-    off = iu != ju
-    for start in range(0, tail.size, batch):
-        idx = tail[start : start + batch]
-        nb = plan.neighbours[start : start + batch]
-        Cp, dCs = _pair_tensors(kernel, plan.pair_sq(X, start, batch), eval_gradient)
-        C = np.empty((idx.size, m + 1, m + 1))
-        C[:, iu, ju] = Cp
-        C[:, ju, iu] = Cp
-        nv = noise_var[np.concatenate([nb, idx[:, None]], axis=1)]
-        diag = np.arange(m + 1)
-        C[:, diag, diag] += nv
-        Cn, c, cii = C[:, :m, :m], C[:, :m, m], C[:, m, m]
-        yN, yi = r[nb], r[idx]
-        try:
-            sol = np.linalg.solve(Cn, np.stack([yN, c], axis=-1))  # (b, m, 2)
-        except np.linalg.LinAlgError as exc:
-            raise NumericalError("Vecchia neighbour covariance is singular") from exc
-        alpha, bvec = sol[..., 0], sol[..., 1]
-        mu = np.einsum("bj,bj->b", c, alpha)
-        s2 = cii - np.einsum("bj,bj->b", c, bvec)
-        if not np.all(s2 > 0):
-            raise NumericalError("a Vecchia conditional variance is not positive")
-        e = yi - mu
-        lml += float(np.sum(-0.5 * e * e / s2 - 0.5 * np.log(s2)) - 0.5 * idx.size * _LOG_2PI)
-        if not eval_gradient:
-            continue
-        # d mu = dc^T alpha - b^T dC_N alpha;  d s2 = dc_ii - 2 dc^T b + b^T dC_N b, so
-        # d lml = sum_b w_mu d mu + w_s2 d s2 is linear in dC: one weight tensor W per batch
-        # and d lml / d theta_j = <dC_j, W> (one dot product per hyperparameter).
-        w_mu, w_s2 = e / s2, 0.5 * (e * e / s2 - 1.0) / s2
-        W = np.zeros_like(C)
-        W[:, :m, :m] = bvec[:, :, None] * (w_s2[:, None] * bvec - w_mu[:, None] * alpha)[:, None, :]
-        W[:, :m, m] = w_mu[:, None] * alpha - 2.0 * w_s2[:, None] * bvec
-        W[:, m, m] = w_s2
-        Wp = W[:, iu, ju]  # packed: an off-diagonal pair stands for both (k, l) and (l, k)
-        Wp[:, off] += W[:, ju[off], iu[off]]
-        for j, dC in enumerate(dCs):
-            grad[j] += float(np.vdot(dC, Wp))
-        if nugget is not None:  # dC = nugget * I on the diagonal, zero off it
-            dmu = -nugget * np.einsum("bj,bj->b", bvec, alpha)
-            ds2 = nugget * (1.0 + np.einsum("bj,bj->b", bvec, bvec))
-            grad[len(dCs)] += float(np.sum(w_mu * dmu + w_s2 * ds2))
+    n_grad = 0 if grad is None else grad.size
+    ranges = []  # (start, stop) of the tail positions: batches, each cut in `parts`
+    for a in range(0, tail.size, batch):
+        cuts = np.linspace(a, min(a + batch, tail.size), parts + 1).astype(int)
+        pieces = zip(cuts[:-1], cuts[1:], strict=True)
+        ranges += [(int(lo), int(hi)) for lo, hi in pieces if hi > lo]
+
+    def rows(ab: tuple[int, int]) -> tuple[float, np.ndarray]:
+        return _rows(kernel, X, r, noise_var, plan, ab, eval_gradient, nugget, n_grad)
+
+    # The same ranges and the same order of the sums with or without threads: same bits.
+    outs = list(pool.map(rows, ranges)) if pool is not None else [rows(ab) for ab in ranges]
+    for part_lml, part_grad in outs:
+        lml += part_lml
+        if eval_gradient:
+            grad += part_grad
     return (lml, np.asarray(grad)) if eval_gradient else lml
 
 
@@ -262,3 +243,57 @@ def nearest_neighbour_predict(
         mean[sl] = np.einsum("bj,bj->b", c, sol[..., 0])
         var[sl] = np.maximum(prior - np.einsum("bj,bj->b", c, sol[..., 1]), 0.0)
     return mean, var
+
+
+def _rows(
+    kernel, X, r, noise_var, plan, ab, eval_gradient, nugget, n_grad
+) -> tuple[float, np.ndarray]:
+    """The conditionals at tail positions ``ab = (start, stop)``: their log-density sum
+    and its gradient (length ``n_grad``; zeros without ``eval_gradient``)."""
+    m = plan.m
+    iu, ju = _upper(m + 1)
+    off = iu != ju
+    lml = 0.0
+    grad = np.zeros(n_grad)
+    a, b = ab
+    idx = plan.order[m:][a:b]
+    nb = plan.neighbours[a:b]
+    Cp, dCs = _pair_tensors(kernel, plan.pair_sq(X, a, b - a), eval_gradient)
+    C = np.empty((idx.size, m + 1, m + 1))
+    C[:, iu, ju] = Cp
+    C[:, ju, iu] = Cp
+    nv = noise_var[np.concatenate([nb, idx[:, None]], axis=1)]
+    diag = np.arange(m + 1)
+    C[:, diag, diag] += nv
+    Cn, c, cii = C[:, :m, :m], C[:, :m, m], C[:, m, m]
+    yN, yi = r[nb], r[idx]
+    try:
+        sol = np.linalg.solve(Cn, np.stack([yN, c], axis=-1))  # (b, m, 2)
+    except np.linalg.LinAlgError as exc:
+        raise NumericalError("Vecchia neighbour covariance is singular") from exc
+    alpha, bvec = sol[..., 0], sol[..., 1]
+    mu = np.einsum("bj,bj->b", c, alpha)
+    s2 = cii - np.einsum("bj,bj->b", c, bvec)
+    if not np.all(s2 > 0):
+        raise NumericalError("a Vecchia conditional variance is not positive")
+    e = yi - mu
+    lml += float(np.sum(-0.5 * e * e / s2 - 0.5 * np.log(s2)) - 0.5 * idx.size * _LOG_2PI)
+    if not eval_gradient:
+        return lml, grad
+    # d mu = dc^T alpha - b^T dC_N alpha;  d s2 = dc_ii - 2 dc^T b + b^T dC_N b, so
+    # d lml = sum_b w_mu d mu + w_s2 d s2 is linear in dC: one weight tensor W per batch
+    # and d lml / d theta_j = <dC_j, W> (one dot product per hyperparameter).
+    w_mu, w_s2 = e / s2, 0.5 * (e * e / s2 - 1.0) / s2
+    W = np.zeros_like(C)
+    W[:, :m, :m] = bvec[:, :, None] * (w_s2[:, None] * bvec - w_mu[:, None] * alpha)[:, None, :]
+    W[:, :m, m] = w_mu[:, None] * alpha - 2.0 * w_s2[:, None] * bvec
+    W[:, m, m] = w_s2
+    Wp = W[:, iu, ju]  # packed: an off-diagonal pair stands for both (k, l) and (l, k)
+    Wp[:, off] += W[:, ju[off], iu[off]]
+    for j, dC in enumerate(dCs):
+        grad[j] += float(np.vdot(dC, Wp))
+    if nugget is not None:  # dC = nugget * I on the diagonal, zero off it
+        dmu = -nugget * np.einsum("bj,bj->b", bvec, alpha)
+        ds2 = nugget * (1.0 + np.einsum("bj,bj->b", bvec, bvec))
+        grad[len(dCs)] += float(np.sum(w_mu * dmu + w_s2 * ds2))
+    return lml, grad
