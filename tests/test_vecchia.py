@@ -47,6 +47,28 @@ def test_full_conditioning_sets_equal_the_exact_likelihood(data):
     np.testing.assert_allclose(g, g_exact, rtol=1e-7, atol=1e-8)
 
 
+def test_pieces_over_threads_same_bits_as_pieces_in_turn(data):
+    """The refine cuts each evaluation into pieces: the pieces fix the sums' order, so one
+    thread and a pool give the same bits; the value equals one piece's to rounding."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    X, r, zv = data
+    plan = VecchiaPlan.build(X, 12, np.random.default_rng(2))
+    one = vecchia_lml(KERNEL, X, r, zv + 0.02, plan, True, 0.02)
+    for parts in (2, 3):
+        alone = vecchia_lml(KERNEL, X, r, zv + 0.02, plan, True, 0.02, parts=parts)
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            threaded = vecchia_lml(
+                KERNEL, X, r, zv + 0.02, plan, True, 0.02, pool=pool, parts=parts
+            )
+        assert alone[0] == threaded[0] and np.array_equal(alone[1], threaded[1])
+        assert alone[0] == pytest.approx(one[0], rel=1e-12, abs=0)
+        np.testing.assert_allclose(alone[1], one[1], rtol=1e-10, atol=1e-10)
+    # small batches: every batch is cut, and the pieces still cover each row once
+    small = vecchia_lml(KERNEL, X, r, zv + 0.02, plan, False, None, batch=50, parts=2)
+    assert small == pytest.approx(vecchia_lml(KERNEL, X, r, zv + 0.02, plan), rel=1e-12)
+
+
 @pytest.mark.parametrize(
     "kernel",
     [
