@@ -19,6 +19,7 @@ import functools
 import numpy as np
 import scipy.linalg.cython_blas as _cython_blas
 import scipy.linalg.cython_lapack as _cython_lapack
+from scipy.linalg import LinAlgError, cholesky, solve_triangular
 
 __all__ = ["cholesky_lower", "solve_lower"]
 
@@ -28,15 +29,22 @@ _dbl_p = ctypes.POINTER(ctypes.c_double)
 
 
 def _function(module, name: str, *argtypes):
-    """A ctypes callable for the Cython-exported routine ``name`` (GIL released in calls)."""
-    capsule = module.__pyx_capi__[name]
-    get_name = ctypes.pythonapi.PyCapsule_GetName
-    get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
-    get_pointer = ctypes.pythonapi.PyCapsule_GetPointer
-    get_pointer.restype = ctypes.c_void_p
-    get_pointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
-    address = get_pointer(capsule, get_name(capsule))
-    return ctypes.CFUNCTYPE(None, *argtypes)(address)
+    """A ctypes callable for the Cython-exported routine ``name`` (GIL released in calls),
+    or ``None`` where this SciPy does not export it with 32-bit integers (then the SciPy
+    wrapper is used, GIL held)."""
+    try:
+        capsule = module.__pyx_capi__[name]
+        get_name = ctypes.pythonapi.PyCapsule_GetName
+        get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
+        signature = get_name(capsule)
+        if b"int *" not in signature or b"int64" in signature:
+            return None
+        get_pointer = ctypes.pythonapi.PyCapsule_GetPointer
+        get_pointer.restype = ctypes.c_void_p
+        get_pointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
+        return ctypes.CFUNCTYPE(None, *argtypes)(get_pointer(capsule, signature))
+    except (AttributeError, KeyError, TypeError, ValueError):
+        return None
 
 
 @functools.cache
@@ -73,6 +81,11 @@ def cholesky_lower(K: np.ndarray) -> np.ndarray | None:
         bits as ``scipy.linalg.cholesky(K, lower=True)``; ``None`` where LAPACK reports that
         ``K`` is not positive definite (the caller adds jitter).
     """
+    if _dpotrf() is None:
+        try:
+            return cholesky(K, lower=True, check_finite=False)
+        except LinAlgError:
+            return None
     a = np.array(K, dtype=np.float64, order="F", copy=True)
     n = ctypes.c_int(a.shape[0])
     info = ctypes.c_int(0)
@@ -100,6 +113,8 @@ def solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
     """
     if not B.flags.f_contiguous or B.dtype != np.float64:
         raise ValueError("solve_lower needs a Fortran-ordered float64 right-hand side")
+    if _dtrsm() is None:
+        return solve_triangular(L, B, lower=True, check_finite=False, overwrite_b=True)
     n, m = B.shape
     if L.flags.f_contiguous:
         a, uplo, trans = L, b"L", b"N"

@@ -80,3 +80,18 @@ def test_exact_prediction_same_bits_for_any_thread_count_and_equal_to_alg_2_1():
     assert np.allclose(one[1], np.sqrt(var), rtol=1e-10, atol=0)
     mean_only, none = predict_exact(Xq, X, L, alpha, kernel, 128, prior, False)
     assert none is None and np.array_equal(mean_only, one[0])
+
+
+def test_without_the_cython_exports_the_scipy_wrappers_give_the_same_results(monkeypatch):
+    import terrain.nogil_lapack as nl
+
+    _, K = _spd(60)
+    rng = np.random.default_rng(4)
+    Ks = rng.normal(size=(9, 60))
+    L_fast, V_fast = cholesky_lower(K), solve_lower(cholesky_lower(K), Ks.copy().T)
+    monkeypatch.setattr(nl, "_dpotrf", lambda: None)
+    monkeypatch.setattr(nl, "_dtrsm", lambda: None)
+    assert np.array_equal(nl.cholesky_lower(K), L_fast)
+    assert np.array_equal(nl.solve_lower(L_fast, Ks.copy().T), V_fast)
+    K[0, 0] = -1.0
+    assert nl.cholesky_lower(K) is None
