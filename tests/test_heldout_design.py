@@ -61,3 +61,21 @@ def test_one_scale_ratio_matches_its_closed_form_without_noise():
     expect = float(np.sum(w * r**2 / lv) / np.sum(w))
     got = one_scale_ratio(r, lv, np.zeros_like(lv), w)
     assert got == pytest.approx(expect, rel=1e-4)
+
+
+def test_bootstrap_same_bits_for_any_thread_count(monkeypatch):
+    # The resamples are drawn in order, then estimated over threads (os.cpu_count() of them).
+    import terrain.heldout_design as hd
+
+    rng = np.random.default_rng(5)
+    n = 1500
+    lat = rng.uniform(0.002, 0.03, n)
+    noise = np.full(n, 0.04)
+    resid = rng.normal(0.0, np.sqrt(lat * rng.choice([0.5, 1.0, 2.0], n) + noise))
+    w, block = rng.uniform(0.5, 2.0, n), rng.integers(0, 120, n)
+    outs = []
+    for cpus in (1, 3):
+        monkeypatch.setattr(hd.os, "cpu_count", lambda c=cpus: c)
+        outs.append(hd.map_calibration(resid, lat, noise, w, block, np.random.default_rng(0), 20))
+    assert outs[0] == outs[1]
+    assert outs[0]["map_coverage_68_interval"] is not None
