@@ -13,9 +13,10 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 import numpy as np
-from scipy.linalg import LinAlgError, cholesky, lapack
+from scipy.linalg import lapack
 
 from .errors import JitterWarning, NumericalError
+from .nogil_lapack import cholesky_lower
 
 __all__ = ["cholesky_jitter", "inverse_from_cholesky", "one_blas_thread", "single_blas_thread"]
 
@@ -71,10 +72,9 @@ def cholesky_jitter(
     jitter : float
         The jitter added, in the units of ``K`` (0.0 when none was needed).
     """
-    try:
-        return cholesky(K, lower=True, check_finite=False), 0.0
-    except LinAlgError:
-        pass
+    L = cholesky_lower(K)  # GIL released: callers factor in threads (terrain.tiled)
+    if L is not None:
+        return L, 0.0
     scale = float(np.mean(np.diag(K)))
     if not np.isfinite(scale) or scale <= 0:
         raise NumericalError(
@@ -85,9 +85,8 @@ def cholesky_jitter(
     while jitter <= max_relative_jitter * scale * (1 + 1e-12):
         Kj = K.copy()
         Kj[np.diag_indices_from(Kj)] += jitter
-        try:
-            L = cholesky(Kj, lower=True, check_finite=False)
-        except LinAlgError:
+        L = cholesky_lower(Kj)
+        if L is None:
             jitter *= 10.0
             continue
         warnings.warn(

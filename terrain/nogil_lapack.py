@@ -2,13 +2,14 @@
 
 SciPy's ``scipy.linalg`` wrappers (f2py) hold the GIL while LAPACK runs, so threads over
 tiles (:mod:`terrain.tiled`) ran their Cholesky factors and triangular solves one at a
-time: measured on 2 cores, ``solve_triangular`` with two threads ran at 0.9x the speed of
-one. SciPy also exports the same routines to Cython (``scipy.linalg.cython_blas`` and
+time: measured on 2 cores, ``solve_triangular`` with two threads ran at 0.77-0.9x the
+speed of one. SciPy also exports the same routines to Cython (``scipy.linalg.cython_blas`` and
 ``cython_lapack``, a public, stable interface); calling those function pointers through
 :mod:`ctypes` releases the GIL for the call. The arguments are exactly those SciPy's own
 wrappers pass (a Fortran-ordered copy for ``dpotrf``, the transposed view for ``dtrsm``),
 so the results are the same bits as ``scipy.linalg.cholesky`` and ``solve_triangular``
-(tested in tests/test_tiled.py).
+(tested in tests/test_nogil_lapack.py). ``terrain.linalg.cholesky_jitter`` factors
+through it, so every Cholesky of the package releases the GIL.
 """
 
 from __future__ import annotations
@@ -92,7 +93,8 @@ def cholesky_lower(K: np.ndarray) -> np.ndarray | None:
     _dpotrf()(b"L", ctypes.byref(n), _ptr(a), ctypes.byref(n), ctypes.byref(info))
     if info.value != 0:
         return None
-    return np.tril(a)
+    a[np.triu_indices(a.shape[0], 1)] = 0.0  # in place: Fortran order, as SciPy returns it
+    return a
 
 
 def solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:

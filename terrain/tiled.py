@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 from .errors import TilingWarning, bad_input
 from .heldout_design import default_targets
 from .linalg import cholesky_jitter
-from .nogil_lapack import cholesky_lower, solve_lower
+from .nogil_lapack import solve_lower
 
 __all__ = [
     "TileSpec",
@@ -351,10 +351,8 @@ def predict_tiled(
         scale = 1.0 if amp is None else amp
         K[np.diag_indices_from(K)] += noise_var[d_idx]
         # The factor and the solves below release the GIL (terrain.nogil_lapack), so the
-        # tiles' threads run side by side; jitter (rare) goes through the usual path.
-        L = cholesky_lower(K)
-        if L is None:
-            L, jitter = cholesky_jitter(K, what=f"tile ({i}, {j}) kernel matrix")
+        # tiles' threads run side by side.
+        L, jitter = cholesky_jitter(K, what=f"tile ({i}, {j}) kernel matrix")
         alpha = cho_solve((L, True), resid[d_idx], check_finite=False)  # R&W Alg. 2.1 line 3
         W = None
         if return_std and basis is not None:
