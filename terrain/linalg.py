@@ -16,6 +16,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from .errors import JitterWarning, NumericalError
+from .heap import keep_freed_memory
 from .nogil_lapack import cholesky_lower
 
 __all__ = ["cholesky_jitter", "inverse_from_cholesky", "one_blas_thread", "single_blas_thread"]
@@ -40,10 +41,12 @@ def one_blas_thread() -> Any:
 
 
 def single_blas_thread(func: _F) -> _F:
-    """Decorator: run ``func`` inside :func:`one_blas_thread`."""
+    """Decorator: run ``func`` inside :func:`one_blas_thread`, with glibc told to reuse freed
+    memory (:func:`terrain.heap.keep_freed_memory`, once per process)."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        keep_freed_memory()
         with one_blas_thread():
             return func(*args, **kwargs)
 
