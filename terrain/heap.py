@@ -21,7 +21,6 @@ and not at all with ``GLACIMAP_MALLOC=default``.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
 import os
 
@@ -50,9 +49,9 @@ def keep_freed_memory() -> bool:
     """
     if os.environ.get(ENV, "").strip().lower() == "default":
         return False
-    name = ctypes.util.find_library("c")
     try:
-        libc = ctypes.CDLL(name)
+        # The process's own symbols (dlopen(NULL)): libc's, with no ldconfig subprocess.
+        libc = ctypes.CDLL(None)
         mallopt = libc.mallopt
         # glibc only: other libcs differ in mallopt's options (or have none)
         glibc = hasattr(libc, "gnu_get_libc_version")
