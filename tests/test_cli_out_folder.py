@@ -237,3 +237,20 @@ def test_run_table_shows_the_maps_heldout_coverage_and_its_verdict():
     assert "held-out 68 % coverage of the map (%) │ 91.0 [72.4, 100.0]" in text
     assert "0.977" not in text
     assert "held-out check: held-out 68 % map coverage 91.0 % is 22.7 points above" in text
+
+
+def test_process_refuses_checkpoints_off_the_map_before_localizing(tmp_path, monkeypatch):
+    """With --bounds the map's grid is known at ingest: checkpoints that miss it (here a
+    semicolon CSV in another zone's metres) fail there, not after iSAM2 and the GP fit."""
+    import toolkit.processing
+
+    def no_localize(*args, **kwargs):
+        raise AssertionError("localized before the checkpoints were checked")
+
+    monkeypatch.setattr(toolkit.processing, "localize_stage", no_localize)
+    cps = tmp_path / "cp.csv"
+    cps.write_text("id;x;y;z;crs\n1;326300,5;6475280,25;100;EPSG:32608\n")
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match=r"0 of 1 usable .* 1 outside the DEM"):
+        process(EXAMPLE, checkpoints=cps, bounds=(526000, 6475000, 526600, 6475600), out=out)
+    assert not out.exists()

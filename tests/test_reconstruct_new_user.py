@@ -347,3 +347,39 @@ def test_spot_heights_without_a_track_column_are_independent(tmp_path):
     rover.to_csv(tmp_path / "rover.csv", index=False)
     t = read_samples(tmp_path / "rover.csv", crs="EPSG:32608")
     assert np.all(t.track_z_std == 0.3) and "independent" not in t.note
+
+
+def test_checkpoints_off_the_map_are_refused_before_the_fit(samples_csv, tmp_path, monkeypatch):
+    """Before: lon/lat checkpoints without a CRS were found unusable only after the fit
+    (25 s for 32,000 samples); now they are placed on the map's grid first."""
+    import toolkit.stages
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the GP was fitted before the checkpoints were checked")
+
+    monkeypatch.setattr(toolkit.stages, "reconstruct_stage", no_fit)
+    cps = tmp_path / "cps.csv"
+    # degrees read as metres: every checkpoint lies far outside the UTM map
+    pd.DataFrame({"x": [-134.56, -134.55], "y": [58.41, 58.42], "z": [10.0, 11.0]}).to_csv(
+        cps, index=False
+    )
+    out = tmp_path / "out"
+    res, text = _invoke("reconstruct", str(samples_csv), "--crs", CRS, "--resolution", "10",
+                        "--checkpoints", str(cps), "--out", str(out))  # fmt: skip
+    assert isinstance(res.exception, InputError), text
+    assert "0 of 2 usable (0 NaN, 0 not projectable, 2 outside the DEM, 0 on nodata)" in text
+    assert "add a crs column (e.g. EPSG:4326) or a .crs sidecar" in text
+    assert not out.exists()  # before: an empty --out stayed behind
+
+
+def test_checkpoints_partly_on_the_map_pass_the_early_check(site):
+    from terrain import Grid
+    from toolkit.certify import require_checkpoints_on
+
+    grid = Grid.from_bounds((526000.0, 6475000.0, 526600.0, 6475600.0), 10.0, crs=CRS)
+    table = {"x": [526100.0, 600000.0], "y": [6475100.0, 6475100.0], "z": [1.0, 2.0]}
+    cps = require_checkpoints_on(table, grid, crs=CRS)  # one on, one off: certify counts it
+    assert cps.n == 2
+    table["x"][0] = 700000.0
+    with pytest.raises(InputError, match=r"0 of 2 usable .* 2 outside the DEM"):
+        require_checkpoints_on(table, grid, crs=CRS)

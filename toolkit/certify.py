@@ -58,6 +58,7 @@ __all__ = [
     "heldout_block",
     "read_checkpoints",
     "read_dem",
+    "require_checkpoints_on",
     "sample_bilinear",
     "software_versions",
     "write_certificate",
@@ -149,6 +150,57 @@ def _dropped_warning(n_total: int, n_used: int, *masks: np.ndarray) -> str | Non
     )
 
 
+def place_checkpoints(
+    cps: Checkpoints, grid: Any
+) -> tuple[np.ndarray, dict[str, str] | None, np.ndarray, np.ndarray, np.ndarray]:
+    """Checkpoints in ``grid``'s CRS and which of them can be scored there.
+
+    Returns
+    -------
+    xy : ndarray of shape (n, 2)
+        Checkpoint x, y in the grid's CRS, m (0 on the rows that cannot be placed).
+    reprojected : dict or None
+        The record of the transformation (``None`` when already in the grid's CRS).
+    nan, unprojectable, outside : ndarray of bool, shape (n,)
+        Rows with a NaN value, rows pyproj cannot transform, rows outside the grid.
+    """
+    nan = cps.nan_rows()
+    xy, reprojected = reproject_checkpoints(cps, grid.crs, nan)
+    unprojectable = ~nan & ~np.isfinite(xy).all(axis=1)
+    xy[unprojectable] = 0.0
+    outside = ~nan & ~unprojectable & ~grid.contains(xy)
+    return xy, reprojected, nan, unprojectable, outside
+
+
+def _none_usable(cps: Checkpoints, nan, unprojectable, outside, nodata) -> Exception:
+    """The error for checkpoints of which none can be scored, with the counts and the fix."""
+    ok = ~nan
+    degrees = ok.any() and bool(
+        (np.abs(cps.xy[ok, 0]) <= 180).all() and (np.abs(cps.xy[ok, 1]) <= 90).all()
+    )
+    return bad_input(
+        "checkpoints",
+        f"0 of {cps.n} usable ({int(nan.sum())} NaN, {int(unprojectable.sum())} not "
+        f"projectable, {int(outside.sum())} outside the DEM, {int(nodata.sum())} on nodata)",
+        "checkpoints on valid DEM cells",
+        "the coordinates look like longitude / latitude degrees but the file names no CRS: "
+        "add a crs column (e.g. EPSG:4326) or a .crs sidecar"
+        if cps.crs is None and degrees
+        else "check the CRS and the extent of both files",
+    )
+
+
+def require_checkpoints_on(checkpoints: Any, grid: Any, crs: Any = None) -> Checkpoints:
+    """Read ``checkpoints`` and fail before any work when none of them lies on ``grid`` (the
+    map to be made): the same error :func:`certify` gives once the map exists, without the
+    wait for the fit. Returns the checkpoints read."""
+    cps = as_checkpoints(checkpoints, crs)
+    _, _, nan, unprojectable, outside = place_checkpoints(cps, grid)
+    if not (~nan & ~unprojectable & ~outside).any():
+        raise _none_usable(cps, nan, unprojectable, outside, np.zeros(cps.n, dtype=bool))
+    return cps
+
+
 def certify(
     dem: Any,
     checkpoints: Checkpoints | str | os.PathLike | Mapping[str, Any],
@@ -215,11 +267,7 @@ def certify(
     heldout_cal = None if heldout is None else heldout_block(heldout)  # fail before any work
     raster = read_dem(dem)
     cps = as_checkpoints(checkpoints, crs)
-    nan = cps.nan_rows()
-    xy, reprojected = reproject_checkpoints(cps, raster.grid.crs, nan)
-    unprojectable = ~nan & ~np.isfinite(xy).all(axis=1)
-    xy[unprojectable] = 0.0
-    outside = ~nan & ~unprojectable & ~raster.grid.contains(xy)
+    xy, reprojected, nan, unprojectable, outside = place_checkpoints(cps, raster.grid)
     dem_z = np.full(cps.n, np.nan)
     cand = ~nan & ~unprojectable & ~outside
     dem_z[cand] = sample_bilinear(raster.grid, raster.elevation, xy[cand])
@@ -227,20 +275,7 @@ def certify(
     used = cand & ~nodata
     n = int(used.sum())
     if n == 0:
-        ok = ~nan
-        degrees = ok.any() and bool(
-            (np.abs(cps.xy[ok, 0]) <= 180).all() and (np.abs(cps.xy[ok, 1]) <= 90).all()
-        )
-        raise bad_input(
-            "checkpoints",
-            f"0 of {cps.n} usable ({int(nan.sum())} NaN, {int(unprojectable.sum())} not "
-            f"projectable, {int(outside.sum())} outside the DEM, {int(nodata.sum())} on nodata)",
-            "checkpoints on valid DEM cells",
-            "the coordinates look like longitude / latitude degrees but the file names no CRS: "
-            "add a crs column (e.g. EPSG:4326) or a .crs sidecar"
-            if cps.crs is None and degrees
-            else "check the CRS and the extent of both files",
-        )
+        raise _none_usable(cps, nan, unprojectable, outside, nodata)
     err = dem_z[used] - cps.z[used]
     rmse = float(np.sqrt(np.mean(err**2)))
     lo, hi = bootstrap_rmse_ci(err, n_boot=n_boot, seed=seed)

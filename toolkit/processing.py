@@ -27,6 +27,7 @@ from terrain import RasterMean
 from terrain.atomic import atomic_path
 from terrain.errors import InputError, bad_input
 
+from .certify import require_checkpoints_on
 from .config import load_scenario
 from .export._files import output_folder, previous_products, remove_stale, staged_folder
 from .provenance import input_record, split_timings
@@ -279,6 +280,9 @@ def _process(
     with stage("ingest"):
         mlog, ingest_report = ingest(log, images=images, on_frames=on_frames)
         ctrl, cps = _control_and_checkpoints(control, checkpoints, mlog)
+        resolution = float(settings["reconstruct"]["resolution_m"])
+        if cps is not None and bounds is not None:  # on the map? known before localizing
+            require_checkpoints_on(cps, map_grid(bounds, resolution, mlog.crs))
         mean = prior_mean(prior, settings)
         # which files made the map, by name and SHA-256 (every product's metadata)
         log_record = None if isinstance(log, MeasurementLog) else input_record("log", log)
@@ -303,9 +307,9 @@ def _process(
                 "a map needs at least 3: check the camera tracks and the [select] settings"
             )
     with stage("reconstruct"):
-        grid = map_grid(
-            bounds, float(settings["reconstruct"]["resolution_m"]), mlog.crs, sel.samples
-        )
+        grid = map_grid(bounds, resolution, mlog.crs, sel.samples)
+        if cps is not None:  # placed on the map before the fit, not after it
+            require_checkpoints_on(cps, grid)
         folds = int(settings["certify"]["heldout_folds"])
         rec = reconstruct_selection(sel, grid, mean, settings, seed, folds)
         rec.product.attrs["inputs"] = json.dumps(

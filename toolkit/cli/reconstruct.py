@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from terrain.atomic import atomic_path, ensure_writable_dir
+from terrain.atomic import atomic_path
 from terrain.errors import bad_input
 
 console = Console()
@@ -111,13 +111,15 @@ def reconstruct(
         )
     if bounds is not None and like is not None:
         raise bad_input("--bounds / --like", "both", "at most one", "pass one of them")
-    out_dir = ensure_writable_dir(out)
-    if demo:
-        _run_demo(out_dir, seed, n_samples, resolution)
-        return
-    _reconstruct_csv(
-        samples, out_dir, seed, resolution, crs, prior, bounds, like, checkpoints, config
-    )
+    from ..export._files import output_folder
+
+    with output_folder(out) as out_dir:  # a failed run leaves no empty --out behind
+        if demo:
+            _run_demo(out_dir, seed, n_samples, resolution)
+            return
+        _reconstruct_csv(
+            samples, out_dir, seed, resolution, crs, prior, bounds, like, checkpoints, config
+        )
 
 
 def _run_demo(out_dir: Path, seed: int, n_samples: int, resolution: float) -> None:
@@ -158,6 +160,11 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
     else:
         data = table.samples
         grid = map_grid(bounds, resolution, data.crs, data)
+    checkpoints = None
+    if cps is not None:  # read and placed before the fit: a wrong CRS fails in seconds
+        from ..certify import require_checkpoints_on
+
+        checkpoints = require_checkpoints_on(cps, grid)
     footprint = _footprint_note(data, grid)
     if footprint:  # said before the fit: a big map of few samples is long to wait for
         console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
@@ -202,7 +209,7 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
             if r is not None
         ]
     )
-    cert = certify_stage(rec, cps, settings, seed) if cps is not None else None
+    cert = certify_stage(rec, checkpoints, settings, seed) if cps is not None else None
     if cert is None and rec.heldout is not None:
         from ..certify import heldout_block
 
