@@ -18,7 +18,9 @@ mean error is ``mu - obs`` (the certificate's sign: positive, the map is too hig
 
 Those are the coverages of a new *measurement*. The map's own 1-sigma is checked through
 them (:mod:`terrain.heldout_design`): the default block side is chosen so that held-out
-samples lie as far from the data as the map's cells do, and the map-level scores
+samples lie as far from the data as the map's cells do (and, where it moves the check, are
+matched to the map cells' whole neighbourhoods: :mod:`terrain.heldout_weights`), and the
+map-level scores
 (``variance_ratio``, ``map_coverage_68``, ``map_coverage_95``) remove the samples' noise,
 which otherwise hides a map 1-sigma that is too small. The verdict speaks of those.
 
@@ -43,11 +45,16 @@ from .heldout_design import (
     along_track_shared,
     default_targets,
     distance_weights,
-    heldout_distances,
     map_calibration,
     matched_block_size,
 )
 from .heldout_verdict import coverage_verdict
+from .heldout_weights import (
+    effective_share,
+    heldout_neighbour_distances,
+    neighbour_distances,
+    neighbourhood_weights,
+)
 from .metrics import calibration_curve, interval_coverage, nlpd, rmse, standardized_error_stats
 from .samples import ElevationSamples
 
@@ -421,11 +428,19 @@ def cross_validate(
         rows.append(row)
 
     pooled = _scores(samples.z, mu, sd)
-    heldout_d = heldout_distances(samples.xy, fold)
+    heldout_nd = heldout_neighbour_distances(samples.xy, fold)  # 1st, 4th, 16th nearest
+    heldout_d = heldout_nd[:, 0]
     weights = distance_weights(heldout_d, target_d)
+    # the same samples matched to the map cells' whole neighbourhoods (heldout_weights)
+    around = neighbourhood_weights(heldout_nd, neighbour_distances(samples.xy, target_xy))
     boot_rng = np.random.default_rng([seed, 1])  # the bootstrap's own stream of the seed
-    calib = map_calibration(samples.z - mu, latent_var, noise_var, weights, block, boot_rng)
+    calib = map_calibration(
+        samples.z - mu, latent_var, noise_var, weights, block, boot_rng, neighbourhood=around
+    )
     pooled.update(calib)
+    if calib.get("matched_on") == "neighbourhood":
+        weights = around
+    pooled["heldout_effective_share"] = effective_share(weights)
     t_s = samples.extra.get("t_s")
     if t_s is not None and np.shape(t_s) == (samples.n,) and np.isfinite(t_s).all():
         pooled["along_track_shared"], pooled["heldout_dt_median_s"] = along_track_shared(

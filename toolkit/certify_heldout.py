@@ -41,6 +41,13 @@ _HELDOUT_MAP = (
     "map_distance_median_m",
     "along_track_shared",
     "heldout_dt_median_s",
+    "matched_on",
+    "distance_matched_coverage_68",
+    "distance_matched_coverage_95",
+    "neighbourhood_matched_coverage_68",
+    "neighbourhood_matched_coverage_95",
+    "neighbourhood_difference_sd",
+    "heldout_effective_share",
 )
 _Z_DEFINITION = "(map - held-out sample) / sd, the sign of mean_error_m"
 
