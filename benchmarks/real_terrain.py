@@ -178,9 +178,13 @@ def _heldout(gp, samples, grid) -> dict[str, Any]:
     out = {k: 100 * p[k] for k in keys if p.get(k) is not None}
     for k in ("map_coverage_95_interval", "map_coverage_68_interval"):
         out[k] = [100 * v for v in p[k]] if p.get(k) else None
+    for k in ("distance_matched_coverage_68", "neighbourhood_matched_coverage_68"):
+        out[k] = None if p.get(k) is None else 100 * p[k]
     out.update(
         variance_ratio=p.get("variance_ratio"),
         noise_share=p.get("noise_share"),
+        matched_on=p.get("matched_on"),
+        neighbourhood_difference_sd=p.get("neighbourhood_difference_sd"),
         block_m=cv.block_size,
         rule=cv.block_size_rule,
         verdict=cv.verdict(),
