@@ -50,6 +50,7 @@ from .heldout_design import (
 )
 from .heldout_verdict import coverage_verdict
 from .heldout_weights import (
+    MATCH_TARGETS,
     effective_share,
     heldout_neighbour_distances,
     neighbour_distances,
@@ -432,7 +433,8 @@ def cross_validate(
     heldout_d = heldout_nd[:, 0]
     weights = distance_weights(heldout_d, target_d)
     # the same samples matched to the map cells' whole neighbourhoods (heldout_weights)
-    around = neighbourhood_weights(heldout_nd, neighbour_distances(samples.xy, target_xy))
+    cells = target_xy[:: int(np.ceil(target_xy.shape[0] / MATCH_TARGETS))]  # even stride
+    around = neighbourhood_weights(heldout_nd, neighbour_distances(samples.xy, cells))
     boot_rng = np.random.default_rng([seed, 1])  # the bootstrap's own stream of the seed
     calib = map_calibration(
         samples.z - mu, latent_var, noise_var, weights, block, boot_rng, neighbourhood=around
