@@ -237,6 +237,15 @@ def test_run_table_shows_the_maps_heldout_coverage_and_its_verdict():
     assert "held-out 68 % coverage of the map (%) │ 91.0 [72.4, 100.0]" in text
     assert "0.977" not in text
     assert "held-out check: held-out 68 % map coverage 91.0 % is 22.7 points above" in text
+    # the check switched to the map cells' neighbourhoods (terrain.heldout_weights): said
+    table = Table()
+    table.add_column("q")
+    table.add_column("v")
+    certificate_rows(table, {"heldout_calibration": {**held, "matched_on": "neighbourhood"}})
+    console = Console(width=200, record=True)
+    console.print(table)
+    text = console.export_text()
+    assert "held-out 68 % coverage of the map (neighbourhoods) (%) │ 91.0 [72.4, 100.0]" in text
 
 
 def test_process_refuses_checkpoints_off_the_map_before_localizing(tmp_path, monkeypatch):
