@@ -37,6 +37,7 @@ __all__ = [
     "MATCH_VOTES",
     "NEIGHBOUR_RANKS",
     "effective_share",
+    "even_stride",
     "heldout_neighbour_distances",
     "neighbour_distances",
     "neighbourhood_weights",
@@ -48,6 +49,12 @@ NEIGHBOUR_RANKS = (1, 4, 16)
 MATCH_VOTES = 60
 #: Map cells described at most (an even stride through the targets beyond this).
 MATCH_TARGETS = 20_000
+
+
+def even_stride(points: np.ndarray, limit: int = MATCH_TARGETS) -> np.ndarray:
+    """At most about ``limit`` rows of ``points`` by an even stride (no random numbers spent):
+    the map cells the neighbourhood matching describes."""
+    return points[:: max(1, int(np.ceil(points.shape[0] / limit)))]
 
 
 def _ranks(ranks: tuple[int, ...], available: int) -> list[int]:
@@ -97,8 +104,7 @@ def neighbourhood_weights(
         Held-out samples each cell votes for.
     """
     n = heldout_d.shape[0]
-    if target_d.shape[0] > MATCH_TARGETS:  # an even stride: no random numbers spent
-        target_d = target_d[:: int(np.ceil(target_d.shape[0] / MATCH_TARGETS))]
+    target_d = even_stride(target_d)
     # log distances, scaled by the map's spread (a small floor keeps cells on samples finite)
     floor = 1e-3 * max(float(np.median(target_d[:, -1])), 1e-9)
     h, t = np.log(heldout_d + floor), np.log(target_d + floor)

@@ -50,8 +50,8 @@ from .heldout_design import (
 )
 from .heldout_verdict import coverage_verdict
 from .heldout_weights import (
-    MATCH_TARGETS,
     effective_share,
+    even_stride,
     heldout_neighbour_distances,
     neighbour_distances,
     neighbourhood_weights,
@@ -433,7 +433,7 @@ def cross_validate(
     heldout_d = heldout_nd[:, 0]
     weights = distance_weights(heldout_d, target_d)
     # the same samples matched to the map cells' whole neighbourhoods (heldout_weights)
-    cells = target_xy[:: int(np.ceil(target_xy.shape[0] / MATCH_TARGETS))]  # even stride
+    cells = even_stride(target_xy)  # the cells the weights describe: only those measured
     around = neighbourhood_weights(heldout_nd, neighbour_distances(samples.xy, cells))
     boot_rng = np.random.default_rng([seed, 1])  # the bootstrap's own stream of the seed
     calib = map_calibration(

@@ -26,7 +26,7 @@ import numpy as np
 
 from survey import standards
 from terrain.atomic import atomic_path
-from terrain.errors import bad_input
+from terrain.errors import InputError, bad_input
 from terrain.metrics import interval_coverage, standardized_error_stats
 from terrain.validation import CrossValidation
 from terrain.validation import json_safe as _clean
@@ -172,7 +172,7 @@ def place_checkpoints(
     return xy, reprojected, nan, unprojectable, outside
 
 
-def _none_usable(cps: Checkpoints, nan, unprojectable, outside, nodata) -> Exception:
+def _none_usable(cps: Checkpoints, nan, unprojectable, outside, nodata) -> InputError:
     """The error for checkpoints of which none can be scored, with the counts and the fix."""
     ok = ~nan
     degrees = ok.any() and bool(

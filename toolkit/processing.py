@@ -308,7 +308,7 @@ def _process(
             )
     with stage("reconstruct"):
         grid = map_grid(bounds, resolution, mlog.crs, sel.samples)
-        if cps is not None:  # placed on the map before the fit, not after it
+        if cps is not None and bounds is None:  # the grid is new: placed before the fit
             require_checkpoints_on(cps, grid)
         folds = int(settings["certify"]["heldout_folds"])
         rec = reconstruct_selection(sel, grid, mean, settings, seed, folds)

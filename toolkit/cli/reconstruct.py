@@ -209,7 +209,7 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
             if r is not None
         ]
     )
-    cert = certify_stage(rec, checkpoints, settings, seed) if cps is not None else None
+    cert = certify_stage(rec, checkpoints, settings, seed) if checkpoints is not None else None
     if cert is None and rec.heldout is not None:
         from ..certify import heldout_block
 
