@@ -48,6 +48,7 @@ from .heldout_design import (
     map_calibration,
     matched_block_size,
 )
+from .heldout_local_fit import local_plane_residuals
 from .heldout_verdict import coverage_verdict
 from .heldout_weights import (
     effective_share,
@@ -435,11 +436,17 @@ def cross_validate(
     # the same samples matched to the map cells' whole neighbourhoods (heldout_weights)
     cells = even_stride(target_xy)  # the cells the weights describe: only those measured
     around = neighbourhood_weights(heldout_nd, neighbour_distances(samples.xy, cells))
+    # where the noise is independent between held-out neighbours, planes through them
+    # average most of it away before the check removes what is left (heldout_local_fit)
+    resid, resid_noise, local = local_plane_residuals(
+        samples.xy, samples.z, mu, noise_var, fold, weights
+    )
     boot_rng = np.random.default_rng([seed, 1])  # the bootstrap's own stream of the seed
     calib = map_calibration(
-        samples.z - mu, latent_var, noise_var, weights, block, boot_rng, neighbourhood=around
+        resid, latent_var, resid_noise, weights, block, boot_rng, neighbourhood=around
     )
     pooled.update(calib)
+    pooled.update(local)
     if calib.get("matched_on") == "neighbourhood":
         weights = around
     pooled["heldout_effective_share"] = effective_share(weights)

@@ -48,6 +48,12 @@ _HELDOUT_MAP = (
     "neighbourhood_matched_coverage_95",
     "neighbourhood_difference_sd",
     "heldout_effective_share",
+    "local_fit_used",
+    "local_fit_share",
+    "local_fit_radius_m",
+    "local_fit_q",
+    "local_fit_noise_kept",
+    "local_fit_rule",
 )
 _Z_DEFINITION = "(map - held-out sample) / sd, the sign of mean_error_m"
 
