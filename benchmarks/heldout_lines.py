@@ -123,6 +123,8 @@ def run_case(kind: str, mean_name: str, prior_path: Path | None) -> dict:
         "heldout68_interval": [100.0 * v for v in p["map_coverage_68_interval"]],
         "matched_on": p.get("matched_on"),
         "difference_sd": p.get("neighbourhood_difference_sd"),
+        "local_fit_used": p.get("local_fit_used"),
+        "local_fit_q": p.get("local_fit_q"),
         "distance_matched68": 100.0 * p["distance_matched_coverage_68"],
         "distance_matched95": 100.0 * p["distance_matched_coverage_95"],
         "true_at_lines68": lines68,

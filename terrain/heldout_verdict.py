@@ -60,6 +60,8 @@ def coverage_verdict(pooled: dict[str, Any], tolerance_points: float = 5.0) -> l
         what = "map coverage (held-out, noise removed)"
         if pooled.get("matched_on") == "neighbourhood":  # terrain.heldout_weights
             what = "map coverage (held-out samples with the map's neighbourhoods, noise removed)"
+        if pooled.get("local_fit_used"):  # terrain.heldout_local_fit
+            what = what.replace("noise removed", "local planes, noise removed")
         if observed is None or not math.isfinite(observed):
             observed, what, interval = pooled.get("coverage_" + label[:2]), "coverage", None
         if observed is None or not math.isfinite(observed):

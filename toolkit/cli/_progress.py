@@ -184,7 +184,13 @@ def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
                 band = f" [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]" if ci else ""
                 # held-out samples weighted to the map cells' whole neighbourhoods, when
                 # that moved the check beyond chance (terrain.heldout_weights)
-                how = " (neighbourhoods)" if pooled.get("matched_on") == "neighbourhood" else ""
+                ways = [
+                    "neighbourhoods" if pooled.get("matched_on") == "neighbourhood" else "",
+                    # held-out elevations from planes through their neighbours
+                    # (terrain.heldout_local_fit)
+                    "local planes" if pooled.get("local_fit_used") else "",
+                ]
+                how = f" ({', '.join(w for w in ways if w)})" if any(ways) else ""
                 table.add_row(
                     f"held-out {level} % coverage of the map{how} (%)", f"{100 * cov:.1f}{band}"
                 )
