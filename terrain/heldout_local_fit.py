@@ -54,7 +54,8 @@ NEIGHBOURS = 16
 #: Radius of a fit, in median nearest-neighbour spacings of the samples. 3.5: about 8
 #: samples of a uniform scatter fall within it, more along tracks. Measured on the
 #: benchmark's 0.86 m spacing (docs/terrain.md): 3 m read within 3 points on 26 of 38 rows,
-#: 2 m on 23, 1.5 m on 14 (too few neighbours), 4.8-13 m on 6-18 (the ground's curvature).
+#: 2 m on 23, 1.5 m on 14 (too few neighbours); radii tied to the shortest length scale
+#: (2.8-175 m) on 6-18 (the ground's curvature).
 RADIUS_SPACINGS = 3.5
 #: A fit is used only where it keeps less than this share of the sample's noise variance.
 MAX_NOISE_KEPT = 0.5
