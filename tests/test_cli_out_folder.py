@@ -246,6 +246,16 @@ def test_run_table_shows_the_maps_heldout_coverage_and_its_verdict():
     console.print(table)
     text = console.export_text()
     assert "held-out 68 % coverage of the map (neighbourhoods) (%) │ 91.0 [72.4, 100.0]" in text
+    # ... and read its held-out elevations from local planes (terrain.heldout_local_fit)
+    table = Table()
+    table.add_column("q")
+    table.add_column("v")
+    both = {**held, "matched_on": "neighbourhood", "local_fit_used": True}
+    certificate_rows(table, {"heldout_calibration": both})
+    console = Console(width=200, record=True)
+    console.print(table)
+    text = console.export_text()
+    assert "coverage of the map (neighbourhoods, local planes) (%) │ 91.0" in text
 
 
 def test_process_refuses_checkpoints_off_the_map_before_localizing(tmp_path, monkeypatch):

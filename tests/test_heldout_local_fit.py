@@ -163,3 +163,20 @@ def test_cross_validate_reads_a_noise_dominated_map_through_local_planes():
         assert key in p
     # the measurement-level scores stay those of the single held-out samples
     assert p["rmse_m"] == pytest.approx(float(np.sqrt(np.mean((z - err) ** 2))), rel=1e-9)
+
+
+def test_the_verdict_says_when_local_planes_were_read():
+    from terrain.heldout_verdict import coverage_verdict
+
+    pooled = {
+        "map_coverage_68": 0.55,
+        "map_coverage_68_interval": [0.50, 0.60],  # excludes nominal
+        "map_coverage_95": 0.95,
+        "map_coverage_95_interval": [0.94, 0.96],
+        "noise_share": 0.5,
+    }
+    (plain,) = coverage_verdict(pooled)
+    (planes,) = coverage_verdict({**pooled, "local_fit_used": True})
+    assert "(held-out, noise removed)" in plain
+    assert "(held-out, local planes, noise removed)" in planes
+    assert planes.endswith("the map's 1-sigma is too small")

@@ -239,6 +239,9 @@ def test_report_draws_heldout_curve_and_verdict(demo, cert_heldout, tmp_path):
     assert html.count('<tr><td class="num">') >= block["n_folds"]  # per-fold rows
     again = write_report(tmp_path / "h2.html", product=product, certificate=cert_heldout)
     assert again.read_bytes() == path.read_bytes()  # deterministic
+    # whether the held-out elevations came from local planes, and why, is stated in words
+    assert str(escape(block["local_fit_rule"])) in html
+    assert block["local_fit_rule"].startswith(("used: ", "not used: "))
     full = write_report(
         tmp_path / "f.html", product=product, certificate=cert_heldout, truth=demo.truth
     )
