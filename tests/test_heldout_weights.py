@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from terrain.heldout_design import NEIGHBOURHOOD_SWITCH_SD, map_calibration
+from terrain.heldout_design import (
+    NEIGHBOURHOOD_SWITCH_POINTS,
+    NEIGHBOURHOOD_SWITCH_SD,
+    map_calibration,
+)
 from terrain.heldout_weights import (
     MATCH_TARGETS,
     effective_share,
@@ -129,3 +133,25 @@ def test_no_switch_by_chance_and_then_the_same_bits_as_without():
     for key, value in plain.items():
         assert out[key] == value, key
     assert out["distance_matched_coverage_68"] == plain["map_coverage_68"]
+
+
+def test_no_switch_for_a_difference_beyond_chance_but_within_the_verdicts_tolerance():
+    # Kind B's errors 1.3 x the stated variance: A alone covers 68.3 %, A and B together
+    # about 65 % (2 Phi(1 / sqrt(1.3)) - 1 = 62 % for B; hand). With 20,000 samples the
+    # 3-point difference between the two weightings is far beyond chance, but under the
+    # verdict's 5 points: the distance-matched scores stay.
+    rng = np.random.default_rng(7)
+    n = 20000
+    latent = rng.uniform(0.5, 2.0, n) * 1e-2
+    noise = np.full(n, 0.25 * latent.mean())
+    kind_b = np.arange(n) >= n // 2
+    err = rng.normal(0.0, np.sqrt(np.where(kind_b, 1.3, 1.0) * latent))
+    resid = err + rng.normal(0.0, np.sqrt(noise))
+    around = np.where(kind_b, 0.0, 2.0)
+    out = map_calibration(resid, latent, noise, np.ones(n), np.arange(n) // 20,
+                          np.random.default_rng(0), n_boot=30, neighbourhood=around)  # fmt: skip
+    diff = out["neighbourhood_matched_coverage_68"] - out["distance_matched_coverage_68"]
+    assert 0.015 < diff < NEIGHBOURHOOD_SWITCH_POINTS / 100.0
+    assert out["neighbourhood_difference_sd"] > NEIGHBOURHOOD_SWITCH_SD
+    assert out["matched_on"] == "nearest distance"
+    assert out["map_coverage_68"] == out["distance_matched_coverage_68"]
