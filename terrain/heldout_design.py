@@ -236,7 +236,7 @@ _EM_STEPS = 300
 NEIGHBOURHOOD_SWITCH_SD = 3.0
 #: ... and by more than this many points at that level: the verdict's own tolerance. Since
 #: the held-out elevations come from local planes (terrain.heldout_local_fit) the bootstrap
-#: is tighter and 3 sd alone was passed by 3-4 point differences between the two
+#: is tighter and 3 sd alone was passed by 3-7 point differences between the two
 #: weightings on 9 of 22 benchmark rows at 50k, where the neighbourhood-matched reading was
 #: the farther from the truth on 5 (docs/terrain.md "Held-out residuals averaged over planes
 #: through their neighbours"); the line surveys' gaps move it by 18 points.
