@@ -50,7 +50,7 @@ from scipy.spatial import cKDTree
 from scipy.special import ndtr
 from threadpoolctl import threadpool_limits
 
-from .heldout_weights import heldout_neighbour_distances
+from .heldout_weights import heldout_neighbour_distances, sample_spacing
 
 __all__ = [
     "BLOCK_LADDER",
@@ -177,7 +177,7 @@ def matched_block_size(
         The chosen rung's fold and block of each sample.
     """
     gap = float(np.median(target_d))
-    spacing = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
+    spacing = sample_spacing(xy)
     unit = max(gap, 0.5 * spacing, 1e-3)
     best = None
     for mult in BLOCK_LADDER:

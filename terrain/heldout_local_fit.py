@@ -47,6 +47,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .heldout_weights import sample_spacing
+
 __all__ = ["NEIGHBOURS", "Q_TOLERANCE", "RADIUS_SPACINGS", "local_plane_residuals"]
 
 #: Held-out samples of one fold in each plane fit, the sample itself included.
@@ -64,32 +66,32 @@ Q_TOLERANCE = 0.15
 
 
 def _plane_weights(
-    xy: np.ndarray, fold: np.ndarray, radius: float, leave_out: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """Intercept weights of a least-squares plane through each sample's nearest same-fold
-    samples within ``radius``: ``a`` (n, k) and neighbour indices (n, k); rows whose
+    xy: np.ndarray, fold: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Intercept weights of least-squares planes through each sample's nearest same-fold
+    samples within ``radius``: ``a`` (n, k) with the sample itself, ``b`` (n, k) the same
+    neighbours without it (leave-one-out), and the neighbour indices (n, k). Rows whose
     intercept the neighbours do not determine (fewer than three, or a line not through the
     sample) are 0."""
     n = xy.shape[0]
-    a = np.zeros((n, NEIGHBOURS))
+    a, b = np.zeros((n, NEIGHBOURS)), np.zeros((n, NEIGHBOURS))
     nbr = np.zeros((n, NEIGHBOURS), dtype=np.int64)
     for f in np.unique(fold):
         idx = np.flatnonzero(fold == f)
         k = min(NEIGHBOURS, idx.size)
         dist, near = cKDTree(xy[idx]).query(xy[idx], k=k, distance_upper_bound=radius)
         dist, near = dist.reshape(idx.size, k), near.reshape(idx.size, k)
-        ok = np.isfinite(dist)
-        if leave_out:
-            ok[:, 0] = False  # the sample itself (distance 0, first)
-        members = np.where(ok, idx[np.minimum(near, idx.size - 1)], idx[:, None])
-        m = ok.astype(float)
-        d = (xy[members] - xy[idx, None, :]) * m[..., None]  # (ni, k, 2), m
-        design = np.concatenate([m[..., None], d], axis=-1)  # columns 1, dx, dy
-        w = np.linalg.pinv(design, rcond=1e-8)[:, 0, :] * m  # the intercept's row
-        fits = np.abs(w.sum(axis=1) - 1.0) < 1e-6
-        a[idx, :k] = np.where(fits[:, None], w, 0.0)
+        found = np.isfinite(dist)
+        members = np.where(found, idx[np.minimum(near, idx.size - 1)], idx[:, None])
+        d = xy[members] - xy[idx, None, :]  # (ni, k, 2), m
+        for out, ok in ((a, found), (b, found & (np.arange(k) > 0))):  # 0: itself
+            m = ok.astype(float)
+            design = np.concatenate([m[..., None], d * m[..., None]], axis=-1)  # 1, dx, dy
+            w = np.linalg.pinv(design, rcond=1e-8)[:, 0, :] * m  # the intercept's row
+            fits = np.abs(w.sum(axis=1) - 1.0) < 1e-6
+            out[idx, :k] = np.where(fits[:, None], w, 0.0)
         nbr[idx, :k] = members
-    return a, nbr
+    return a, b, nbr
 
 
 def local_plane_residuals(
@@ -130,9 +132,8 @@ def local_plane_residuals(
         ``local_fit_noise_kept`` (weighted noise variance kept over the samples' own) and
         ``local_fit_rule`` (in words, with the reason when not used).
     """
-    resid, noise = z - mu, noise_var.astype(float).copy()
-    spacing = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1])) if xy.shape[0] > 1 else 0.0
-    radius = RADIUS_SPACINGS * spacing
+    resid, noise = z - mu, np.array(noise_var, dtype=float)
+    radius = RADIUS_SPACINGS * sample_spacing(xy)
     info: dict[str, Any] = {
         "local_fit_used": False,
         "local_fit_share": 0.0,
@@ -143,7 +144,7 @@ def local_plane_residuals(
     if not radius > 0:
         info["local_fit_rule"] = "not used: the samples have no spacing"
         return resid, noise, info
-    a, nbr = _plane_weights(xy, fold, radius, leave_out=False)
+    a, b, nbr = _plane_weights(xy, fold, radius)
     kept = np.sum(a**2 * noise_var[nbr], axis=1)
     use = (a.sum(axis=1) > 0.5) & (kept < MAX_NOISE_KEPT * noise_var)
     info["local_fit_share"] = float(use.mean())
@@ -153,10 +154,9 @@ def local_plane_residuals(
         )
         return resid, noise, info
     # leave-one-out residuals of the same fits: is the noise independent, the ground a plane?
-    b, nbr_out = _plane_weights(xy, fold, radius, leave_out=True)
     check = use & (b.sum(axis=1) > 0.5)
-    seen = (z - np.sum(b * z[nbr_out], axis=1))[check] ** 2
-    stated = (noise_var + np.sum(b**2 * noise_var[nbr_out], axis=1))[check]
+    seen = (z - np.sum(b * z[nbr], axis=1))[check] ** 2
+    stated = (noise_var + np.sum(b**2 * noise_var[nbr], axis=1))[check]
     # unweighted: the noise and the ground at the radius do not depend on where the map's
     # cells are, and the weights rest on few samples (a noisier q)
     q = float(np.sum(seen) / np.sum(stated)) if np.sum(stated) > 0 else float("nan")

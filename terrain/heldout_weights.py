@@ -41,6 +41,7 @@ __all__ = [
     "heldout_neighbour_distances",
     "neighbour_distances",
     "neighbourhood_weights",
+    "sample_spacing",
 ]
 
 #: Ranks of the nearest data whose distances describe a point's neighbourhood.
@@ -55,6 +56,13 @@ def even_stride(points: np.ndarray, limit: int = MATCH_TARGETS) -> np.ndarray:
     """At most about ``limit`` rows of ``points`` by an even stride (no random numbers spent):
     the map cells the neighbourhood matching describes."""
     return points[:: max(1, int(np.ceil(points.shape[0] / limit)))]
+
+
+def sample_spacing(xy: np.ndarray) -> float:
+    """Median distance from each sample to its nearest other sample, m (0 for one sample)."""
+    if xy.shape[0] < 2:
+        return 0.0
+    return float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
 
 
 def _ranks(ranks: tuple[int, ...], available: int) -> list[int]:
