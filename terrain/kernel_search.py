@@ -79,6 +79,14 @@ _SMOOTHNESS = {"se": np.inf, "matern32": 1.5, "matern52": 2.5, "matern72": 3.5}
 #: 6-10 strong): within it a Matern is kept over an SE-based winner (docs/terrain.md
 #: "Near ties").
 BIC_TIE = 6.0
+#: The margin a *single* SE winner needs over the best Matern (Kass & Raftery's "very
+#: strong", 2 ln B > 10). One SE length must carry every scale of the ground, and its
+#: analytic paths make it over-confident between dense data: on real DEMs at 50,000
+#: samples with the 8 x 8 prior, single SEs 7-9 BIC ahead of a Matern 7/2 covered 89.9-90.0 %
+#: at 95, the Matern 7/2 94.8-96.4 %; leads of 18-45 (line surveys, topobathy, the default
+#: site drawn from Eq 1) were in band (docs/terrain.md "A single SE needs very strong
+#: evidence").
+SINGLE_SE_MARGIN = 10.0
 
 
 def se_sum_inside_gaps(name: str, kernel: Any, widest_gap: float | None) -> bool:
@@ -332,7 +340,8 @@ def select_kernel(
     """Fit each candidate by the Vecchia likelihood and keep the best BIC (a near tie, within
     :data:`BIC_TIE`, between an SE-based winner and a Matern goes to the Matern, unless the
     winner is an SE + SE whose short scale fits inside the survey's widest gap:
-    :func:`se_sum_inside_gaps`).
+    :func:`se_sum_inside_gaps`; a single SE keeps its win only beyond
+    :data:`SINGLE_SE_MARGIN`).
 
     Parameters
     ----------
@@ -449,7 +458,8 @@ def select_kernel(
         # evidence cannot tell them apart, and the SE's infinite smoothness is what makes
         # sigma over-confident in the gaps between swaths (Stein 1999, Interpolation of
         # Spatial Data, 1.7; measured on real DEMs: docs/terrain.md "Near ties").
-        tied = [r_ for r_ in ok if r_["bic"] - best["bic"] <= BIC_TIE]
+        margin = SINGLE_SE_MARGIN if best["name"] == "se" else BIC_TIE
+        tied = [r_ for r_ in ok if r_["bic"] - best["bic"] <= margin]
         finite = [r_ for r_ in tied if np.isfinite(smoothness(r_["name"]))]
         kept = se_sum_inside_gaps(best["name"], fits[best["name"]][0], widest_gap)
         if not np.isfinite(smoothness(best["name"])) and finite and not kept:

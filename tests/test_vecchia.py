@@ -200,6 +200,37 @@ def test_near_tie_keeps_an_se_sum_whose_short_scale_fits_the_gaps(monkeypatch):
     assert narrow.name == "matern52"  # gaps narrower than its short scale: guarded
 
 
+def test_single_se_keeps_its_win_only_beyond_the_very_strong_margin(monkeypatch):
+    """A single SE winner goes to the best Matérn unless it leads by more than
+    SINGLE_SE_MARGIN (docs/terrain.md "A single SE needs very strong evidence"). The margin
+    is set either side of the draw's own lead, so that the rule, not the draw, decides; an
+    SE + SE winner keeps the near-tie margin BIC_TIE."""
+    from terrain import kernel_search
+    from terrain.kernels import SquaredExponential
+
+    rng = np.random.default_rng(4)
+    X = rng.uniform(0.0, 300.0, (500, 2))
+    K = SquaredExponential(4.0, 40.0)(X, X) + 1e-4 * np.eye(500)
+    r = np.linalg.cholesky(K) @ rng.standard_normal(500)
+    z_var = np.full(500, 1e-4)
+    kw = dict(fit_nugget=False, nugget=1e-6, nugget_bounds="fixed", spacing=None)
+    names = ("se", "matern72")
+
+    def choose() -> kernel_search.KernelChoice:
+        return kernel_search.select_kernel(X, r, z_var, names, **kw, rng=np.random.default_rng(0))
+
+    monkeypatch.setattr(kernel_search, "SINGLE_SE_MARGIN", 0.0)
+    plain = choose()
+    assert plain.name == "se"  # a draw of one SE: the evidence picks it
+    lead = next(row["delta_bic"] for row in plain.scores if row["name"] == "matern72")
+    assert lead > 0.0
+    monkeypatch.setattr(kernel_search, "SINGLE_SE_MARGIN", lead + 1.0)
+    assert choose().name == "matern72"  # not a very strong lead: the Matérn
+    monkeypatch.setattr(kernel_search, "SINGLE_SE_MARGIN", lead - 1.0)
+    monkeypatch.setattr(kernel_search, "BIC_TIE", lead + 1.0)  # the SE + SE margin only
+    assert choose().name == "se"
+
+
 def test_se_sum_inside_gaps_only_for_two_se_scales():
     from terrain.kernel_search import se_sum_inside_gaps
     from terrain.kernels import Matern, SquaredExponential
