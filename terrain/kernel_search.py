@@ -84,8 +84,8 @@ BIC_TIE = 6.0
 #: analytic paths make it over-confident between dense data: on real DEMs at 50,000
 #: samples with the 8 x 8 prior, single SEs 7-9 BIC ahead of a Matern 7/2 covered 89.9-90.0 %
 #: at 95, the Matern 7/2 94.8-96.4 %; leads of 18-45 (line surveys, topobathy, the default
-#: site drawn from Eq 1) were in band (docs/terrain.md "A single SE needs very strong
-#: evidence").
+#: site drawn from Eq 1) were in band (docs/terrain.md "Ten windows never looked at, and
+#: a single SE needs very strong evidence").
 SINGLE_SE_MARGIN = 10.0
 
 
