@@ -458,6 +458,7 @@ def select_kernel(
         # evidence cannot tell them apart, and the SE's infinite smoothness is what makes
         # sigma over-confident in the gaps between swaths (Stein 1999, Interpolation of
         # Spatial Data, 1.7; measured on real DEMs: docs/terrain.md "Near ties").
+        # A single SE must lead by more: one length carries every scale (SINGLE_SE_MARGIN).
         margin = SINGLE_SE_MARGIN if best["name"] == "se" else BIC_TIE
         tied = [r_ for r_ in ok if r_["bic"] - best["bic"] <= margin]
         finite = [r_ for r_ in tied if np.isfinite(smoothness(r_["name"]))]
