@@ -217,6 +217,7 @@ def distance_weights(heldout_d: np.ndarray, target_d: np.ndarray, n_bins: int = 
 #: Scales of the map's standardized error tried by the deconvolution: s^2 from 0.02 to 50
 #: times the stated variance (log-spaced).
 SCALES2 = np.geomspace(0.02, 50.0, 24)
+_Z95 = 1.959964  # standard normal quantile of a central 95 % interval
 _BOOT_ROWS = 5000  # held-out samples the bootstrap refits on (a seeded subsample of blocks)
 #: Spread (in ln s^2) of the EM's start around the one-scale fit, and the EM steps taken
 #: from it. Measured on 16 real-DEM rows (docs/terrain.md): 300 steps from a start of
@@ -366,13 +367,16 @@ def map_calibration(
         variance over its stated variance; 1 is calibrated, > 1 over-confident),
         ``one_scale_ratio`` (the same by maximum likelihood, the EM's start),
         ``noise_share`` (noise fraction of the residual variance), ``map_coverage_68`` /
-        ``map_coverage_95`` (fractions) and their 95 % block-bootstrap intervals
-        ``map_coverage_68_interval`` / ``_95_interval``; the coverages are None when the map
+        ``map_coverage_95`` (fractions) and their 95 % intervals
+        ``map_coverage_68_interval`` / ``_95_interval`` (block bootstrap, widened by
+        ``design_sd`` below); the coverages are None when the map
         states no variance. With ``neighbourhood``: both estimates,
         ``distance_matched_coverage_68`` / ``_95`` and ``neighbourhood_matched_coverage_68`` /
-        ``_95``, ``neighbourhood_difference_sd`` (the larger of the two |difference| / sd) and
-        ``matched_on`` ("nearest distance" or "neighbourhood": which weights the scores
-        above are of).
+        ``_95``, ``neighbourhood_difference_sd`` (the larger of the two |difference| / sd),
+        ``design_sd_68`` / ``_95`` (what the two differ by beyond the bootstrap's chance,
+        ``sqrt(max(d^2 - sd^2, 0))``: the check's design uncertainty, added in quadrature
+        to each side of the intervals above) and ``matched_on`` ("nearest distance" or
+        "neighbourhood": which weights the scores above are of).
     """
     var = SCALES2[None, :] * latent_var[:, None] + noise_var[:, None]  # (n, K)
     loglik = -0.5 * (np.log(var) + resid[:, None] ** 2 / var)
@@ -433,12 +437,18 @@ def map_calibration(
     if not counts:
         return out
     fulls = [np.array([out["map_coverage_68"], out["map_coverage_95"]])]
+    design = np.zeros(2)
     if len(sets) == 2:
         fulls.append(np.array([alt["map_coverage_68"], alt["map_coverage_95"]]))
         sd = np.nanstd(cov[:, 1] - cov[:, 0], axis=0) * scale
         diff = np.abs(fulls[1] - fulls[0])
         gap = diff / np.maximum(sd, 1e-12)
         out["neighbourhood_difference_sd"] = float(gap.max())
+        # The two matchings are two defensible designs of the same check: what they differ
+        # by beyond the bootstrap's chance is the check's own design uncertainty, which no
+        # resampling of the held-out samples shows (moment estimate, E d^2 = design^2 + sd^2)
+        design = np.sqrt(np.maximum(np.nan_to_num(diff**2 - sd**2), 0.0))
+        out["design_sd_68"], out["design_sd_95"] = (float(v) for v in design)
         moved = (gap > NEIGHBOURHOOD_SWITCH_SD) & (100.0 * diff > NEIGHBOURHOOD_SWITCH_POINTS)
         if moved.any():  # the geometry moves the check, beyond chance and by a verdict's worth
             out.update(alt, matched_on="neighbourhood")
@@ -446,6 +456,13 @@ def map_calibration(
     c = fulls[pick] + (cov[:, pick] - centres[pick]) * scale  # (n_boot, 2)
     c = np.clip(c[np.isfinite(c).all(axis=1)], 0.0, 1.0)
     if c.size:
-        out["map_coverage_68_interval"] = np.quantile(c[:, 0], [0.025, 0.975]).tolist()
-        out["map_coverage_95_interval"] = np.quantile(c[:, 1], [0.025, 0.975]).tolist()
+        lo, hi = np.quantile(c, [0.025, 0.975], axis=0)  # each (2,)
+        # the design's sd added in quadrature to each side of the bootstrap interval
+        half = _Z95 * design
+        below, above = np.maximum(fulls[pick] - lo, 0.0), np.maximum(hi - fulls[pick], 0.0)
+        lo = lo - (np.hypot(below, half) - below)
+        hi = hi + (np.hypot(above, half) - above)
+        lo, hi = np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0)
+        out["map_coverage_68_interval"] = [float(lo[0]), float(hi[0])]
+        out["map_coverage_95_interval"] = [float(lo[1]), float(hi[1])]
     return out

@@ -27,8 +27,8 @@ def coverage_verdict(pooled: dict[str, Any], tolerance_points: float = 5.0) -> l
     nominal by more than ``tolerance_points`` percentage points; empty list when both are in.
 
     The map-level coverages (``map_coverage_68`` / ``_95``, the samples' noise removed) are
-    judged where present, and only when their 95 % block-bootstrap interval excludes the
-    nominal level; the coverages of held-out measurements otherwise. Where the held-out
+    judged where present, and only when their 95 % interval (block bootstrap and design)
+    excludes the nominal level; the coverages of held-out measurements otherwise. Where the held-out
     residuals are mostly the samples' own noise (``noise_share`` above
     :data:`NOISE_SHARE_WEAK`) a map-level miss is reported as a weak estimate, not as a
     verdict on the 1-sigma: on nine real DEMs at 50,000 samples (noise share 0.91-0.98) it

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
+from scipy.stats import norm
 
 from terrain.heldout_design import (
     NEIGHBOURHOOD_SWITCH_POINTS,
@@ -131,8 +132,49 @@ def test_no_switch_by_chance_and_then_the_same_bits_as_without():
     assert out["matched_on"] == "nearest distance"
     assert out["neighbourhood_difference_sd"] < NEIGHBOURHOOD_SWITCH_SD
     for key, value in plain.items():
-        assert out[key] == value, key
+        if not key.endswith("_interval"):
+            assert out[key] == value, key
     assert out["distance_matched_coverage_68"] == plain["map_coverage_68"]
+    # the intervals are the bootstrap's, widened only by a difference beyond chance (if any)
+    for level in ("68", "95"):
+        lo, hi = out[f"map_coverage_{level}_interval"]
+        plo, phi = plain[f"map_coverage_{level}_interval"]
+        assert lo <= plo and hi >= phi
+        gap = abs(out[f"neighbourhood_matched_coverage_{level}"] - plain[f"map_coverage_{level}"])
+        assert 0.0 <= out[f"design_sd_{level}"] < gap + 1e-12
+
+
+def test_interval_carries_what_the_two_matchings_differ_by_beyond_chance():
+    # Kind B's errors 1.5 x the stated variance: the neighbourhood weights (A only) read the
+    # 68 % coverage ~4 points above the distance weights (A and B), far beyond chance with
+    # 20,000 samples. That difference is the check's design uncertainty: the reported
+    # interval is the bootstrap's with 1.96 x design_sd added in quadrature to each side
+    # (hand formula below), where the bootstrap alone would be a point wide.
+    rng = np.random.default_rng(8)
+    n = 20000
+    latent = rng.uniform(0.5, 2.0, n) * 1e-2
+    noise = np.full(n, 0.25 * latent.mean())
+    kind_b = np.arange(n) >= n // 2
+    err = rng.normal(0.0, np.sqrt(np.where(kind_b, 1.5, 1.0) * latent))
+    resid = err + rng.normal(0.0, np.sqrt(noise))
+    block = np.arange(n) // 20
+    args = (resid, latent, noise, np.ones(n), block)
+    out = map_calibration(*args, np.random.default_rng(0), n_boot=30,
+                          neighbourhood=np.where(kind_b, 0.0, 2.0))  # fmt: skip
+    plain = map_calibration(*args, np.random.default_rng(0), n_boot=30)
+    assert out["matched_on"] == "nearest distance"  # under the verdict's 5 points
+    diff = out["neighbourhood_matched_coverage_68"] - out["distance_matched_coverage_68"]
+    assert 0.02 < diff < NEIGHBOURHOOD_SWITCH_POINTS / 100.0
+    design = out["design_sd_68"]
+    assert 0.8 * diff < design <= diff  # nearly all of it beyond chance
+    full = out["map_coverage_68"]
+    plo, phi = plain["map_coverage_68_interval"]
+    assert phi - plo < 0.02  # the bootstrap alone: a point or two wide
+    below, above, half = full - plo, phi - full, norm.ppf(0.975) * design
+    lo, hi = out["map_coverage_68_interval"]
+    assert lo == pytest.approx(plo - (np.hypot(below, half) - below), abs=1e-9)
+    assert hi == pytest.approx(phi + (np.hypot(above, half) - above), abs=1e-9)
+    assert hi - lo > 3.0 * diff
 
 
 def test_no_switch_for_a_difference_beyond_chance_but_within_the_verdicts_tolerance():

@@ -47,6 +47,8 @@ _HELDOUT_MAP = (
     "neighbourhood_matched_coverage_68",
     "neighbourhood_matched_coverage_95",
     "neighbourhood_difference_sd",
+    "design_sd_68",
+    "design_sd_95",
     "heldout_effective_share",
     "local_fit_used",
     "local_fit_share",
