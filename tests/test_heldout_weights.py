@@ -144,21 +144,26 @@ def test_no_switch_by_chance_and_then_the_same_bits_as_without():
         assert 0.0 <= out[f"design_sd_{level}"] < gap + 1e-12
 
 
+def _b_rougher(kappa_b: float, seed: int, n: int = 20000):
+    """Residuals of n held-out samples: kind A's map errors at the stated variance, kind B's
+    (the second half) at ``kappa_b`` times it, noise a quarter of the mean stated variance."""
+    rng = np.random.default_rng(seed)
+    latent = rng.uniform(0.5, 2.0, n) * 1e-2
+    noise = np.full(n, 0.25 * latent.mean())
+    kind_b = np.arange(n) >= n // 2
+    err = rng.normal(0.0, np.sqrt(np.where(kind_b, kappa_b, 1.0) * latent))
+    return err + rng.normal(0.0, np.sqrt(noise)), latent, noise, kind_b
+
+
 def test_interval_carries_what_the_two_matchings_differ_by_beyond_chance():
     # Kind B's errors 1.5 x the stated variance: the neighbourhood weights (A only) read the
     # 68 % coverage ~4 points above the distance weights (A and B), far beyond chance with
     # 20,000 samples. That difference is the check's design uncertainty: the reported
     # interval is the bootstrap's with 1.96 x design_sd added in quadrature to each side
     # (hand formula below), where the bootstrap alone would be a point wide.
-    rng = np.random.default_rng(8)
-    n = 20000
-    latent = rng.uniform(0.5, 2.0, n) * 1e-2
-    noise = np.full(n, 0.25 * latent.mean())
-    kind_b = np.arange(n) >= n // 2
-    err = rng.normal(0.0, np.sqrt(np.where(kind_b, 1.5, 1.0) * latent))
-    resid = err + rng.normal(0.0, np.sqrt(noise))
-    block = np.arange(n) // 20
-    args = (resid, latent, noise, np.ones(n), block)
+    resid, latent, noise, kind_b = _b_rougher(1.5, seed=8)
+    n = resid.size
+    args = (resid, latent, noise, np.ones(n), np.arange(n) // 20)
     out = map_calibration(*args, np.random.default_rng(0), n_boot=30,
                           neighbourhood=np.where(kind_b, 0.0, 2.0))  # fmt: skip
     plain = map_calibration(*args, np.random.default_rng(0), n_boot=30)
@@ -182,13 +187,8 @@ def test_no_switch_for_a_difference_beyond_chance_but_within_the_verdicts_tolera
     # about 65 % (2 Phi(1 / sqrt(1.3)) - 1 = 62 % for B; hand). With 20,000 samples the
     # 3-point difference between the two weightings is far beyond chance, but under the
     # verdict's 5 points: the distance-matched scores stay.
-    rng = np.random.default_rng(7)
-    n = 20000
-    latent = rng.uniform(0.5, 2.0, n) * 1e-2
-    noise = np.full(n, 0.25 * latent.mean())
-    kind_b = np.arange(n) >= n // 2
-    err = rng.normal(0.0, np.sqrt(np.where(kind_b, 1.3, 1.0) * latent))
-    resid = err + rng.normal(0.0, np.sqrt(noise))
+    resid, latent, noise, kind_b = _b_rougher(1.3, seed=7)
+    n = resid.size
     around = np.where(kind_b, 0.0, 2.0)
     out = map_calibration(resid, latent, noise, np.ones(n), np.arange(n) // 20,
                           np.random.default_rng(0), n_boot=30, neighbourhood=around)  # fmt: skip
