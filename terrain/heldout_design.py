@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
-from scipy.special import ndtr
+from scipy.special import ndtr, ndtri
 from threadpoolctl import threadpool_limits
 
 from .heldout_weights import heldout_neighbour_distances, sample_spacing
@@ -217,7 +217,7 @@ def distance_weights(heldout_d: np.ndarray, target_d: np.ndarray, n_bins: int = 
 #: Scales of the map's standardized error tried by the deconvolution: s^2 from 0.02 to 50
 #: times the stated variance (log-spaced).
 SCALES2 = np.geomspace(0.02, 50.0, 24)
-_Z95 = 1.959964  # standard normal quantile of a central 95 % interval
+_Z95 = float(ndtri(0.975))  # standard normal quantile of a central 95 % interval
 _BOOT_ROWS = 5000  # held-out samples the bootstrap refits on (a seeded subsample of blocks)
 #: Spread (in ln s^2) of the EM's start around the one-scale fit, and the EM steps taken
 #: from it. Measured on 16 real-DEM rows (docs/terrain.md): 300 steps from a start of
