@@ -4,11 +4,13 @@
     python benchmarks/real_terrain.py --sites olinda:1:60 --sizes 3000     # name:window:nodes
     python benchmarks/real_terrain.py --quick                               # olinda, n=3000
     python benchmarks/real_terrain.py --draw 1 --sizes 3000   # another draw of samples + noise
+    python benchmarks/real_terrain.py --noise unstated        # samples without z_var (x, y, z)
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
 volcano — mapped onto 600 m x 600 m at 2 m, 25 m relief); samples: ``track_samples`` (8
-rover tracks + 10 % scattered, noise sd 0.2 m stated, seed ``--draw``, 0 by default: every
+rover tracks + 10 % scattered, noise sd 0.2 m, stated in ``z_var`` unless ``--noise
+unstated``, seed ``--draw``, 0 by default: every
 site gets the same positions and noise, so the rows of one run share one noise draw). Every
 method maps the truth's 300 x 300 cells from the same samples, each in its own process (wall
 time and peak RSS are its own; one at a time: 2 cores):
@@ -90,7 +92,9 @@ def _data(site: dict, n: int):
     from terrain import Grid
 
     truth = real_dems.glacier_site(site["name"], nodes=site["nodes"], window=site["window"])
-    samples = real_dems.track_samples(truth, n, seed=site.get("draw", SEED), stated_var=True)
+    samples = real_dems.track_samples(
+        truth, n, seed=site.get("draw", SEED), stated_var=site.get("noise", "stated") == "stated"
+    )
     return truth, Grid.from_dataarray(truth), samples
 
 
@@ -500,10 +504,18 @@ def main(argv: list[str] | None = None) -> int:
         default=SEED,
         help="seed of the sample positions and noise (track_samples); 0: every result so far",
     )
+    ap.add_argument(
+        "--noise",
+        choices=("stated", "unstated"),
+        default="stated",
+        help="whether the samples state their noise variance (z_var); unstated: z_var = 0, "
+        "as in a CSV of x, y, z, and the nugget must find the noise",
+    )
     args = ap.parse_args(argv)
     sites = args.sites or [parse_site(s) for s in (("olinda",) if args.quick else SITES)]
     for site in sites:
         site["draw"] = args.draw
+        site["noise"] = args.noise
     sizes = sorted(args.sizes or ((3000,) if args.quick else SIZES))
     import real_dems
 
@@ -518,6 +530,7 @@ def main(argv: list[str] | None = None) -> int:
                 "methods": args.methods,
                 "seed": SEED,
                 "draw": args.draw,
+                "noise": args.noise,
                 "grid": "truth's 2 m grid, 300 x 300 cells",
                 "samples": "real_dems.track_samples: 8 tracks + 10 % scattered, sd 0.2 m",
                 "targets": TARGETS,
