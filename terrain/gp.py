@@ -40,6 +40,7 @@ from .tiled import (
     largest_gap,
     long_scale_part,
     predict_tiled,
+    sample_density,
     shortest_lengthscale,
     warn_long_scale,
 )
@@ -259,7 +260,9 @@ class TerrainGP(HyperparameterMixin):
         self.kernel_, self.nugget_ = kernel, nugget
         self.degenerate_ = warn_if_degenerate(kernel, X if samples.n < 200_000 else None)
         tiles = self.tiles or halo_for_gaps(
-            TileSpec.for_lengthscale(shortest_lengthscale(kernel)), kernel, widest
+            TileSpec.for_lengthscale(shortest_lengthscale(kernel), sample_density(X)),
+            kernel,
+            widest,
         )
         self.tiles_ = tiles
         long_part = long_scale_part(kernel, tiles.halo)

@@ -226,3 +226,59 @@ def test_precise_samples_with_a_faint_short_part_tile_and_match_the_exact_gp():
     a, b = tiled.predict_grid(grid), exact.predict_grid(grid)
     assert np.abs(a.elevation - b.elevation).max() < 0.02
     assert np.allclose(a.elevation_std, b.elevation_std, rtol=0.03)
+
+
+def test_default_tiles_are_sized_to_their_sample_budget():
+    from terrain.tiled import REGION_SHARE, sample_density
+
+    density = 50_000 / 600.0**2  # the real-terrain benchmark at 50k, samples per m^2
+    spec = TileSpec.for_lengthscale(500.0, density)
+    # hand: (1.25 T)^2 * density = 0.5 * 600  ->  T = sqrt(300 / 0.13889) / 1.25 = 37.18 m
+    assert spec.tile == pytest.approx(np.sqrt(300.0 / density) / 1.25, rel=1e-12)
+    assert spec.tile == pytest.approx(37.18, abs=0.01) and spec.blend == spec.tile / 8
+    assert (1.25 * spec.tile) ** 2 * density == pytest.approx(REGION_SHARE * spec.max_points)
+    assert spec.halo == 150.0  # the halo still follows the length scale
+    # sparse surveys keep the length-scale rule; short length scales are below the budget
+    assert TileSpec.for_lengthscale(500.0, 3000 / 600.0**2).tile == 64.0
+    assert TileSpec.for_lengthscale(500.0).tile == 64.0
+    assert TileSpec.for_lengthscale(13.0, density).tile == 26.0
+    assert TileSpec.for_lengthscale(500.0, 100.0).tile == 16.0  # the floor
+    xy = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 20.0], [10.0, 20.0]])
+    assert sample_density(xy) == pytest.approx(4 / 200.0)
+    assert np.isnan(sample_density(xy[:2]))  # a line: no area
+    assert TileSpec.for_lengthscale(500.0, sample_density(xy[:2])).tile == 64.0
+
+
+@pytest.mark.slow
+def test_dense_survey_tiles_keep_the_data_beside_them_on_a_real_dem():
+    # 50,000 samples of the Jacksboro DEM (matplotlib's, no registry): the fitted kernel is
+    # long (Matern 5/2 sum, shortest 39 m), so the length-scale rule gives 64 m tiles whose
+    # blending regions hold ~870 samples against a budget of 600. Measured (session 18,
+    # /tmp/s18/tilesweep.py): grid RMSE 0.0677 m with 64 m tiles, 0.0561 with 40 m.
+    import sys
+    import warnings
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(root / "scripts"))
+    import real_dems
+
+    from terrain import Grid, TerrainGP
+
+    try:
+        truth = real_dems.glacier_site("jacksboro")
+    except real_dems.RealDataUnavailable as exc:
+        pytest.skip(f"real DEM 'jacksboro' unavailable: {exc}")
+    warnings.simplefilter("ignore")
+    grid = Grid.from_dataarray(truth)
+    samples = real_dems.track_samples(truth, 50_000, seed=0)
+    gp = TerrainGP(seed=0).fit(samples)
+    assert gp.tiles_.tile < 40.0
+    old = TileSpec.for_lengthscale(float(np.min([np.min(p.lengths) for p in gp.kernel_.parts])))
+    assert old.tile == 64.0
+    rmse = {}
+    for name, spec in (("budget", gp.tiles_), ("length scale only", old)):
+        fit = TerrainGP(kernel=gp.kernel_, nugget=gp.nugget_, optimize=False, seed=0, tiles=spec)
+        ds = fit.fit(samples).predict_grid(grid)
+        rmse[name] = float(np.sqrt(np.mean((ds.elevation.values - truth.values) ** 2)))
+    assert rmse["budget"] < 0.9 * rmse["length scale only"]
