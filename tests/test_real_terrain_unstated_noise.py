@@ -25,17 +25,13 @@ NOISE_SD = 0.2  # m, track_samples' default: the noise drawn into every sample
 
 @pytest.fixture(scope="module")
 def maps():
-    sys.path.insert(0, str(ROOT / "scripts"))
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    import real_dems
     import real_terrain
+    from _real_sites import real_site
 
     from terrain import Grid, TerrainGP, delaunay_linear
 
-    try:
-        truth = real_dems.glacier_site("jacksboro")
-    except real_dems.RealDataUnavailable as exc:  # matplotlib's sample data missing
-        pytest.skip(f"real DEM 'jacksboro' unavailable: {exc}")
+    real_dems, truth = real_site("jacksboro")  # matplotlib's sample data
     grid = Grid.from_dataarray(truth)
     out = {}
     warnings.simplefilter("ignore")

@@ -255,20 +255,13 @@ def test_dense_survey_tiles_keep_the_data_beside_them_on_a_real_dem():
     # long (Matern 5/2 sum, shortest 39 m), so the length-scale rule gives 64 m tiles whose
     # blending regions hold ~870 samples against a budget of 600. Measured (session 18,
     # /tmp/s18/tilesweep.py): grid RMSE 0.0677 m with 64 m tiles, 0.0561 with 40 m.
-    import sys
     import warnings
-    from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
-    sys.path.insert(0, str(root / "scripts"))
-    import real_dems
+    from _real_sites import real_site
 
     from terrain import Grid, TerrainGP
 
-    try:
-        truth = real_dems.glacier_site("jacksboro")
-    except real_dems.RealDataUnavailable as exc:
-        pytest.skip(f"real DEM 'jacksboro' unavailable: {exc}")
+    real_dems, truth = real_site("jacksboro")
     warnings.simplefilter("ignore")
     grid = Grid.from_dataarray(truth)
     samples = real_dems.track_samples(truth, 50_000, seed=0)
