@@ -36,12 +36,10 @@ from .product import json_rows, mean_coefficients, software_version, terrain_dat
 from .samples import ElevationSamples
 from .tiled import (
     TileSpec,
-    halo_for_gaps,
+    default_tiles,
     largest_gap,
     long_scale_part,
     predict_tiled,
-    sample_density,
-    shortest_lengthscale,
     warn_long_scale,
 )
 
@@ -259,11 +257,7 @@ class TerrainGP(HyperparameterMixin):
                 kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
         self.kernel_, self.nugget_ = kernel, nugget
         self.degenerate_ = warn_if_degenerate(kernel, X if samples.n < 200_000 else None)
-        tiles = self.tiles or halo_for_gaps(
-            TileSpec.for_lengthscale(shortest_lengthscale(kernel), sample_density(X)),
-            kernel,
-            widest,
-        )
+        tiles = self.tiles or default_tiles(kernel, X, widest)
         self.tiles_ = tiles
         long_part = long_scale_part(kernel, tiles.halo)
         # A long-scale part is held by the tiles where data lie within a halo of everywhere.
