@@ -5,6 +5,7 @@
     python benchmarks/real_terrain.py --quick                               # olinda, n=3000
     python benchmarks/real_terrain.py --draw 1 --sizes 3000   # another draw of samples + noise
     python benchmarks/real_terrain.py --noise unstated        # samples without z_var (x, y, z)
+    python benchmarks/real_terrain.py --resampling linear     # truth bilinear between nodes
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
@@ -91,7 +92,12 @@ def _data(site: dict, n: int):
 
     from terrain import Grid
 
-    truth = real_dems.glacier_site(site["name"], nodes=site["nodes"], window=site["window"])
+    truth = real_dems.glacier_site(
+        site["name"],
+        nodes=site["nodes"],
+        window=site["window"],
+        resampling=site.get("resampling", "cubic"),
+    )
     samples = real_dems.track_samples(
         truth, n, seed=site.get("draw", SEED), stated_var=site.get("noise", "stated") == "stated"
     )
@@ -511,11 +517,18 @@ def main(argv: list[str] | None = None) -> int:
         help="whether the samples state their noise variance (z_var); unstated: z_var = 0, "
         "as in a CSV of x, y, z, and the nugget must find the noise",
     )
+    ap.add_argument(
+        "--resampling",
+        choices=("cubic", "linear"),
+        default="cubic",
+        help="truth between the DEM's nodes: bicubic (every result so far) or bilinear facets",
+    )
     args = ap.parse_args(argv)
     sites = args.sites or [parse_site(s) for s in (("olinda",) if args.quick else SITES)]
     for site in sites:
         site["draw"] = args.draw
         site["noise"] = args.noise
+        site["resampling"] = args.resampling
     sizes = sorted(args.sizes or ((3000,) if args.quick else SIZES))
     import real_dems
 
@@ -531,6 +544,7 @@ def main(argv: list[str] | None = None) -> int:
                 "seed": SEED,
                 "draw": args.draw,
                 "noise": args.noise,
+                "resampling": args.resampling,
                 "grid": "truth's 2 m grid, 300 x 300 cells",
                 "samples": "real_dems.track_samples: 8 tracks + 10 % scattered, sd 0.2 m",
                 "targets": TARGETS,
@@ -550,7 +564,9 @@ def main(argv: list[str] | None = None) -> int:
         if any(s["name"] not in real_dems.MATPLOTLIB for s in sites):
             real_dems.fetch()
         for s in sites:
-            real_dems.glacier_site(s["name"], nodes=s["nodes"], window=s["window"])
+            real_dems.glacier_site(
+                s["name"], nodes=s["nodes"], window=s["window"], resampling=s["resampling"]
+            )
     except real_dems.RealDataUnavailable as exc:
         print(f"skipped: {exc}")
         write_json(args.out, payload([], skipped=str(exc)))

@@ -308,6 +308,10 @@ def _windows(z: np.ndarray, k: int) -> list[tuple[int, int]]:
     return [(i, j) for _, i, j in out]
 
 
+#: Spline degree of each ``glacier_site`` resampling.
+SPLINE_DEGREE = {"cubic": 3, "linear": 1}
+
+
 def glacier_site(
     name: str,
     size_m: float = 600.0,
@@ -316,6 +320,7 @@ def glacier_site(
     nodes: int = 40,
     window: int = 0,
     crs: str = "EPSG:32608",
+    resampling: str = "cubic",
 ) -> xr.DataArray:
     """A glacier-sized truth DEM whose shape comes from a real DEM.
 
@@ -334,6 +339,10 @@ def glacier_site(
         Which window: 0 is the one with the most relief, 1 the next...
     crs : str
         CRS the site is labelled with (the paper's UTM 8N).
+    resampling : {"cubic", "linear"}
+        How the window's nodes are carried onto the site's cells: a bicubic spline through
+        them (smooth between nodes) or bilinear facets (creased along node lines, as a DEM
+        upsampled by ``gdalwarp -r bilinear``).
     """
     from scipy.interpolate import RectBivariateSpline
 
@@ -345,7 +354,10 @@ def glacier_site(
     i, j = corners[window]
     w = z[i : i + nodes, j : j + nodes]
     t = np.linspace(0.0, size_m, nodes)
-    spline = RectBivariateSpline(t, t, w[::-1], kx=3, ky=3)  # rows south -> north
+    if resampling not in SPLINE_DEGREE:
+        raise ValueError(f"resampling: expected one of {list(SPLINE_DEGREE)}, got {resampling!r}")
+    k = SPLINE_DEGREE[resampling]
+    spline = RectBivariateSpline(t, t, w[::-1], kx=k, ky=k)  # rows south -> north
     n = int(round(size_m / resolution))
     grid = Grid(500_000.0, 6_800_000.0 + size_m, (resolution, resolution), (n, n), crs)
     u = (np.arange(n) + 0.5) * resolution
@@ -355,7 +367,7 @@ def glacier_site(
         fine,
         "elevation",
         source=f"real DEM {name} window {window} ({nodes} nodes, corner row {i} col {j}), "
-        f"rescaled to {size_m:g} m and {relief_m:g} m relief",
+        f"rescaled to {size_m:g} m and {relief_m:g} m relief, {resampling} between nodes",
     )
 
 
