@@ -8,8 +8,10 @@ speed of one. SciPy also exports the same routines to Cython (``scipy.linalg.cyt
 :mod:`ctypes` releases the GIL for the call. The arguments are exactly those SciPy's own
 wrappers pass (a Fortran-ordered copy for ``dpotrf``, the transposed view for ``dtrsm``),
 so the results are the same bits as ``scipy.linalg.cholesky`` and ``solve_triangular``
-(tested in tests/test_nogil_lapack.py). ``terrain.linalg.cholesky_jitter`` factors
-through it, so every Cholesky of the package releases the GIL.
+(tested in tests/test_nogil_lapack.py; SciPy 1.17's ``solve_triangular`` rounds some small
+systems differently, within 1e-14, and then only the fallback below differs).
+``terrain.linalg.cholesky_jitter`` factors through it, so every Cholesky of the package
+releases the GIL.
 """
 
 from __future__ import annotations

@@ -92,6 +92,9 @@ def test_without_the_cython_exports_the_scipy_wrappers_give_the_same_results(mon
     monkeypatch.setattr(nl, "_dpotrf", lambda: None)
     monkeypatch.setattr(nl, "_dtrsm", lambda: None)
     assert np.array_equal(nl.cholesky_lower(K), L_fast)
-    assert np.array_equal(nl.solve_lower(L_fast, Ks.copy().T), V_fast)
+    # SciPy 1.17's solve_triangular solves this small system (60 x 9) with other rounding
+    # than dtrsm: 5.8e-15 apart at most here (the same bits up to SciPy 1.16).
+    V_slow = nl.solve_lower(L_fast, Ks.copy().T)
+    assert np.allclose(V_slow, V_fast, rtol=0, atol=1e-12 * np.abs(V_fast).max())
     K[0, 0] = -1.0
     assert nl.cholesky_lower(K) is None
