@@ -31,6 +31,7 @@ from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
 from .kernels import Kernel
 from .linalg import cholesky_jitter, single_blas_thread
+from .microscale import microscale_part
 from .prior import as_mean_function
 from .product import json_rows, mean_coefficients, software_version, terrain_dataset
 from .samples import ElevationSamples
@@ -255,8 +256,14 @@ class TerrainGP(HyperparameterMixin):
             self.kernel_name_ = "given"
             if self.optimize:
                 kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
-        self.kernel_, self.nugget_ = kernel, nugget
         self.degenerate_ = warn_if_degenerate(kernel, X if samples.n < 200_000 else None)
+        # The nugget beyond the stated noise is ground below the fit subset's spacing: kept
+        # in the 1-sigma as a short part (terrain/microscale.py), the white nugget floored.
+        fitted = self.optimize and self.fit_nugget
+        self.microscale_ = microscale_part(kernel, nugget, self.z_var_, X[self.fit_index_], fitted)
+        if self.microscale_ is not None:
+            kernel, nugget = kernel + self.microscale_, float(self.nugget_bounds[0])
+        self.kernel_, self.nugget_ = kernel, nugget
         tiles = self.tiles or default_tiles(kernel, X, widest)
         self.tiles_ = tiles
         long_part = long_scale_part(kernel, tiles.halo)

@@ -36,6 +36,7 @@ from scipy.spatial import cKDTree
 from .errors import TilingWarning, bad_input
 from .heldout_design import default_targets
 from .linalg import cholesky_jitter
+from .microscale import without_microscale
 from .nogil_lapack import solve_lower
 
 __all__ = [
@@ -147,8 +148,9 @@ def sample_density(xy: np.ndarray) -> float:
 
 def long_scale_part(kernel, halo: float):
     """The kernel part (if any) whose length scale exceeds ``halo`` while its variance is at
-    least a tenth of the shortest-scale part's: what a tiled GP cannot represent."""
-    parts = getattr(kernel, "parts", (kernel,))
+    least a tenth of the shortest-scale part's: what a tiled GP cannot represent. A
+    :class:`terrain.microscale.Microscale` part is not counted."""
+    parts = without_microscale(kernel)
     short = min(parts, key=lambda p: float(np.min(p.lengths)))
     for p in parts:
         if float(np.min(p.lengths)) > halo and p.variance >= 0.1 * short.variance:
@@ -214,8 +216,9 @@ def largest_gap(xy: np.ndarray, n_side: int = 100) -> float:
 
 
 def shortest_lengthscale(kernel) -> float:
-    """The shortest length scale of a kernel or of any part of a sum, m."""
-    parts = getattr(kernel, "parts", (kernel,))
+    """The shortest length scale of a kernel or of any part of a sum, m (a
+    :class:`terrain.microscale.Microscale` part not counted)."""
+    parts = without_microscale(kernel)
     return float(min(np.min(p.lengths) for p in parts))
 
 
