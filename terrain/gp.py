@@ -114,7 +114,11 @@ class TerrainGP(HyperparameterMixin):
     kernel_ : Kernel
         Kernel with the fitted hyperparameters.
     nugget_ : float
-        Fitted (or fixed) nugget, m^2.
+        Fitted (or fixed) nugget, m^2; the lower bound of ``nugget_bounds`` when the fitted
+        one became ``microscale_``.
+    microscale_ : terrain.microscale.Microscale or None
+        A nugget fitted on top of stated noise, kept in the 1-sigma as ground below the fit
+        subset's spacing (a part of ``kernel_``); ``None`` without one.
     mean_ : callable
         The fitted prior mean function.
     L_ : ndarray of shape (n, n)
