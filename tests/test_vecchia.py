@@ -264,3 +264,52 @@ def test_kernel_search_threads_give_the_same_scores_bit_for_bit():
     np.testing.assert_array_equal(runs[0].kernel.theta, runs[1].kernel.theta)
     assert runs[0].nugget == runs[1].nugget
     assert runs[0].scores == runs[1].scores  # every lml, BIC, CV score and evaluation count
+
+
+@pytest.mark.parametrize(("n", "m"), [(600, 10), (600, 25), (40, 25), (26, 25)])
+def test_conditioning_sets_are_the_nearest_earlier_samples(n, m):
+    """Every set holds the m nearest of *all* earlier positions, nearest first (reference:
+    brute-force distances), with repeated locations among the points."""
+    from terrain.vecchia import nearest_earlier
+
+    rng = np.random.default_rng(n + m)
+    X = rng.uniform(0.0, 100.0, (n, 2))
+    X[1 : n // 2 : 9] = X[0 : n // 2 - 1 : 9]  # repeated locations
+    sets = nearest_earlier(X, m)
+    assert sets.shape == (n - m, m)
+    for i in range(m, n):
+        d2 = np.sum((X[:i] - X[i]) ** 2, axis=1)
+        got = d2[sets[i - m]]
+        assert np.all(sets[i - m] < i) and np.unique(sets[i - m]).size == m
+        np.testing.assert_allclose(got, np.sort(d2)[:m])  # the m nearest, in order
+
+
+def test_nearest_earlier_sets_are_near_the_exact_likelihood_and_blocks_are_not():
+    """Dense, noisy samples in swaths: with the nearest earlier samples m = 25 is within a
+    few nats of Eq 9 whatever the ordering; the kernel search's doubling blocks condition
+    late samples on the first half of the order only and fall ~90-110 nats below it here
+    (240-360 on real DEMs: docs/terrain.md "The kernel search's likelihood is not Eq 9 to a
+    few nats"). Pins the documented gap, both ways."""
+    rng = np.random.default_rng(11)
+    n = 1200
+    y = rng.uniform(0.0, 300.0, n)
+    x = 37.5 * rng.integers(0, 8, n) + rng.normal(0.0, 4.0, n)  # eight swaths
+    X = np.column_stack([x, y])
+    kernel = Matern(4.0, 60.0, nu=2.5) + Matern(0.3, 12.0, nu=2.5)
+    noise = np.full(n, 0.04)
+    r = np.linalg.cholesky(kernel(X, X) + np.diag(noise)) @ rng.standard_normal(n)
+    exact = gaussian_lml(kernel, X, r, noise)
+
+    def gaps(sets):
+        return [
+            vecchia_lml(
+                kernel, X, r, noise, VecchiaPlan.build(X, 25, np.random.default_rng(s), sets)
+            )
+            - exact
+            for s in (0, 1, 2)
+        ]
+
+    assert max(abs(g) for g in gaps("nearest")) < 5.0
+    assert max(gaps("blocks")) < -50.0
+    with pytest.raises(ValueError, match="sets"):
+        VecchiaPlan.build(X, 25, np.random.default_rng(0), "nearby")
