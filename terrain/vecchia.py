@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import NumericalError
+from .errors import NumericalError, bad_input
 from .likelihood import gaussian_lml
 
 __all__ = [
@@ -73,7 +73,7 @@ class VecchiaPlan:
         """Random order (from ``rng``) and conditioning sets of size m: ``"blocks"`` (the
         kernel search's, :func:`block_sets`) or ``"nearest"`` (:func:`nearest_earlier`)."""
         if sets not in ("blocks", "nearest"):
-            raise ValueError(f'sets must be "blocks" or "nearest", got {sets!r}')
+            raise bad_input("sets", sets, '"blocks" or "nearest"', 'sets="blocks"')
         n = X.shape[0]
         m = int(min(m, max(n - 1, 1)))
         order = rng.permutation(n)

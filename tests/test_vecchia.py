@@ -311,5 +311,5 @@ def test_nearest_earlier_sets_are_near_the_exact_likelihood_and_blocks_are_not()
 
     assert max(abs(g) for g in gaps("nearest")) < 5.0
     assert max(gaps("blocks")) < -50.0
-    with pytest.raises(ValueError, match="sets"):
+    with pytest.raises(InputError, match="sets"):
         VecchiaPlan.build(X, 25, np.random.default_rng(0), "nearby")
