@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from .errors import DegenerateFitWarning, InputError, NumericalError, bad_input
+from .heldout_weights import sample_spacing
 from .kernels import Matern, SquaredExponential
 from .tiled import shortest_lengthscale
 from .vecchia import VecchiaPlan, nearest_neighbour_predict, vecchia_lml
@@ -144,9 +145,9 @@ class KernelChoice:
 
 
 def median_spacing(X: np.ndarray) -> float:
-    """Median distance from each sample to its nearest neighbour, m (shape (n, 2) in)."""
-    d, _ = cKDTree(X).query(X, k=2)
-    return float(np.median(d[:, 1]))
+    """Median distance from each sample to its nearest neighbour, m (shape (n, 2) in):
+    :func:`terrain.heldout_weights.sample_spacing`."""
+    return sample_spacing(X)
 
 
 def warn_if_degenerate(kernel: Any, X: np.ndarray | None) -> bool:

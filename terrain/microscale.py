@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from .heldout_weights import sample_spacing
 from .kernels import Matern, _fmt
 
 __all__ = ["MICROSCALE_MIN_SHARE", "Microscale", "microscale_part", "without_microscale"]
@@ -77,6 +77,5 @@ def microscale_part(
     floor = max(MICROSCALE_MIN_SHARE * stated, Matern.variance_bounds[0])
     if nugget <= floor or len(X_fit) < 3:
         return None
-    spacing = float(np.median(cKDTree(X_fit).query(X_fit, k=2)[0][:, 1]))
-    length = max(spacing, Matern.lengthscale_bounds[0])
+    length = max(sample_spacing(X_fit), Matern.lengthscale_bounds[0])
     return Microscale(variance=float(nugget), lengthscale=length)
