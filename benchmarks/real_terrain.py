@@ -6,12 +6,13 @@
     python benchmarks/real_terrain.py --draw 1 --sizes 3000   # another draw of samples + noise
     python benchmarks/real_terrain.py --noise unstated        # samples without z_var (x, y, z)
     python benchmarks/real_terrain.py --resampling linear     # truth bilinear between nodes
+    python benchmarks/real_terrain.py --noise-sd 0.05         # another signal-to-noise ratio
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
 volcano — mapped onto 600 m x 600 m at 2 m, 25 m relief); samples: ``track_samples`` (8
-rover tracks + 10 % scattered, noise sd 0.2 m, stated in ``z_var`` unless ``--noise
-unstated``, seed ``--draw``, 0 by default: every
+rover tracks + 10 % scattered, noise sd ``--noise-sd`` (0.2 m by default), stated in
+``z_var`` unless ``--noise unstated``, seed ``--draw``, 0 by default: every
 site gets the same positions and noise, so the rows of one run share one noise draw). Every
 method maps the truth's 300 x 300 cells from the same samples, each in its own process (wall
 time and peak RSS are its own; one at a time: 2 cores):
@@ -65,6 +66,8 @@ METHODS = (
 )
 WITH_STD = ("glacimap", "glacimap_dem", "pykrige_ok")
 SEED = 0
+#: Samples' noise sd, m (``track_samples``' default; every result before session 21).
+NOISE_SD = 0.2
 # Guards: any case is killed past these; verde_spline is also skipped up front when its dense
 # least-squares solve (~6 n x n float64 arrays) or its extrapolated time would pass them.
 LIMIT_S = 1800.0
@@ -99,7 +102,11 @@ def _data(site: dict, n: int):
         resampling=site.get("resampling", "cubic"),
     )
     samples = real_dems.track_samples(
-        truth, n, seed=site.get("draw", SEED), stated_var=site.get("noise", "stated") == "stated"
+        truth,
+        n,
+        noise_sd=site.get("noise_sd", NOISE_SD),
+        seed=site.get("draw", SEED),
+        stated_var=site.get("noise", "stated") == "stated",
     )
     return truth, Grid.from_dataarray(truth), samples
 
@@ -518,6 +525,13 @@ def main(argv: list[str] | None = None) -> int:
         "as in a CSV of x, y, z, and the nugget must find the noise",
     )
     ap.add_argument(
+        "--noise-sd",
+        type=float,
+        default=NOISE_SD,
+        help="sd of the samples' noise, m (0.2: every result so far; the relief stays 25 m, "
+        "so this sets the survey's signal-to-noise ratio)",
+    )
+    ap.add_argument(
         "--resampling",
         choices=("cubic", "linear"),
         default="cubic",
@@ -529,6 +543,7 @@ def main(argv: list[str] | None = None) -> int:
         site["draw"] = args.draw
         site["noise"] = args.noise
         site["resampling"] = args.resampling
+        site["noise_sd"] = args.noise_sd
     sizes = sorted(args.sizes or ((3000,) if args.quick else SIZES))
     import real_dems
 
@@ -545,8 +560,9 @@ def main(argv: list[str] | None = None) -> int:
                 "draw": args.draw,
                 "noise": args.noise,
                 "resampling": args.resampling,
+                "noise_sd_m": args.noise_sd,
                 "grid": "truth's 2 m grid, 300 x 300 cells",
-                "samples": "real_dems.track_samples: 8 tracks + 10 % scattered, sd 0.2 m",
+                "samples": "real_dems.track_samples: 8 tracks + 10 % scattered, sd noise_sd_m",
                 "targets": TARGETS,
                 "guards": {
                     "limit_s": LIMIT_S,
