@@ -7,6 +7,7 @@
     python benchmarks/real_terrain.py --noise unstated        # samples without z_var (x, y, z)
     python benchmarks/real_terrain.py --resampling linear     # truth bilinear between nodes
     python benchmarks/real_terrain.py --noise-sd 0.05         # another signal-to-noise ratio
+    python benchmarks/real_terrain.py --survey west-half      # east half on the prior alone
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
@@ -68,6 +69,8 @@ WITH_STD = ("glacimap", "glacimap_dem", "pykrige_ok")
 SEED = 0
 #: Samples' noise sd, m (``track_samples``' default; every result before session 21).
 NOISE_SD = 0.2
+#: Cells at least this far from every sample are scored apart (``rmse_far``...), m.
+FAR_M = 50.0
 # Guards: any case is killed past these; verde_spline is also skipped up front when its dense
 # least-squares solve (~6 n x n float64 arrays) or its extrapolated time would pass them.
 LIMIT_S = 1800.0
@@ -108,7 +111,10 @@ def _data(site: dict, n: int):
         seed=site.get("draw", SEED),
         stated_var=site.get("noise", "stated") == "stated",
     )
-    return truth, Grid.from_dataarray(truth), samples
+    grid = Grid.from_dataarray(truth)
+    if site.get("survey", "whole") == "west-half":  # the rover never reached the east half
+        samples = samples.subset(np.flatnonzero(samples.xy[:, 0] < grid.xy()[:, 0].mean()))
+    return truth, grid, samples
 
 
 def _provenance() -> dict[str, Any]:
@@ -182,7 +188,38 @@ def _metrics(pred, std, truth, samples, grid) -> dict[str, Any]:
             cov68_hull=100 * eh["coverage_68"],
             median_std=float(np.median(std[ok])),
         )
+    out.update(_far_metrics(pred, std, t, samples, grid))
     return out
+
+
+def _far_metrics(pred, std, t, samples, grid) -> dict[str, Any]:
+    """RMSE and coverage on the cells at least :data:`FAR_M` from every sample (where only
+    the prior speaks: the unsurveyed half with ``--survey west-half``); ``None`` when no
+    cell is that far."""
+    from scipy.spatial import cKDTree
+
+    from terrain import evaluate
+
+    dist = cKDTree(samples.xy).query(grid.xy())[0].reshape(grid.shape)
+    far = (dist >= FAR_M) & np.isfinite(pred)
+    out: dict[str, Any] = {"far_fraction": float(far.mean()), "rmse_far": None}
+    if not far.any():
+        return out
+    out["rmse_far"] = float(np.sqrt(np.mean((pred[far] - t[far]) ** 2)))
+    if std is not None:
+        ok = far & np.isfinite(std) & (std > 0)
+        e = evaluate(pred[ok], t[ok], std[ok])
+        out.update(cov95_far=100 * e["coverage_95"], cov68_far=100 * e["coverage_68"])
+    return out
+
+
+def _far_text(row: dict) -> str:
+    """The far cells' scores for the progress line ('' when no cell is that far)."""
+    if row.get("rmse_far") is None:
+        return ""
+    cov = f", {row['cov68_far']:.1f} / {row['cov95_far']:.1f} %" if "cov68_far" in row else ""
+    share = f"{100 * row['far_fraction']:.0f} %"
+    return f"; >= {FAR_M:g} m from data ({share}): RMSE {row['rmse_far']:.3f}{cov}"
 
 
 def _heldout(gp, samples, grid) -> dict[str, Any]:
@@ -532,6 +569,14 @@ def main(argv: list[str] | None = None) -> int:
         "so this sets the survey's signal-to-noise ratio)",
     )
     ap.add_argument(
+        "--survey",
+        choices=("whole", "west-half"),
+        default="whole",
+        help="where the rover went: the whole site (every result so far) or the west half "
+        "only, the map's east half then resting on its prior (scored as rmse_far, "
+        "cov68_far, cov95_far: cells at least FAR_M = 50 m from every sample)",
+    )
+    ap.add_argument(
         "--resampling",
         choices=("cubic", "linear"),
         default="cubic",
@@ -544,6 +589,7 @@ def main(argv: list[str] | None = None) -> int:
         site["noise"] = args.noise
         site["resampling"] = args.resampling
         site["noise_sd"] = args.noise_sd
+        site["survey"] = args.survey
     sizes = sorted(args.sizes or ((3000,) if args.quick else SIZES))
     import real_dems
 
@@ -561,6 +607,8 @@ def main(argv: list[str] | None = None) -> int:
                 "noise": args.noise,
                 "resampling": args.resampling,
                 "noise_sd_m": args.noise_sd,
+                "survey": args.survey,
+                "far_m": FAR_M,
                 "grid": "truth's 2 m grid, 300 x 300 cells",
                 "samples": "real_dems.track_samples: 8 tracks + 10 % scattered, sd noise_sd_m",
                 "targets": TARGETS,
@@ -614,6 +662,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"[{site['label']} n={n}] {method}: {row['wall_s']:.1f} s, peak"
                     f" {row['peak_rss_mb']:.0f} MB"
                     + (f", RMSE hull {row['rmse_hull']:.3f}" if "rmse_hull" in row else "")
+                    + _far_text(row)
                     + (f"  ({note[:160]})" if note else ""),
                     flush=True,
                 )

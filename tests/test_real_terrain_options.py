@@ -1,0 +1,82 @@
+"""The real-terrain benchmark's options of session 21: ``--noise-sd`` (the survey's
+signal-to-noise ratio, drawn into the samples and stated in their ``z_var``) and ``--survey
+west-half`` (the rover only in the west half; the cells far from every sample scored apart).
+
+Reference: the noise is ``track_samples``' N(0, sd^2) on top of the truth it stores in
+``extra["true_z"]``; 3,000 draws estimate sd to ~1.3 % (sd / sqrt(2 n)), so the checks below
+allow 5 %. Far cells: distances checked against a brute-force minimum over the samples.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def real_terrain():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import real_terrain
+
+    return real_terrain
+
+
+@pytest.mark.parametrize("sd", [0.05, 0.5])
+def test_the_samples_carry_the_noise_asked_for(real_terrain, sd):
+    site = dict(real_terrain.parse_site("jacksboro"), noise_sd=sd)  # matplotlib's DEM
+    _, _, samples = real_terrain._data(site, 3000)
+    err = samples.z - samples.extra["true_z"]
+    assert np.std(err) == pytest.approx(sd, rel=0.05)
+    assert np.all(samples.z_var == pytest.approx(sd**2))
+
+
+def test_the_default_is_every_earlier_result(real_terrain):
+    _, _, samples = real_terrain._data(real_terrain.parse_site("jacksboro"), 3000)
+    assert real_terrain.NOISE_SD == 0.2
+    assert np.all(samples.z_var == pytest.approx(0.04))
+
+
+def test_the_option_is_recorded_in_the_results(real_terrain, tmp_path):
+    out = tmp_path / "r.json"
+    real_terrain.main(
+        ["--sites", "jacksboro", "--sizes", "3000", "--methods", "delaunay", "--noise-sd", "0.1"]
+        + ["--out", str(out)]
+    )
+    payload = json.loads(out.read_text())
+    assert payload["results"][0]["rmse_hull"] > 0.0
+    settings = payload["settings"]
+    assert settings["noise_sd_m"] == 0.1
+    assert settings["sites"][0]["noise_sd"] == 0.1
+
+
+def test_a_west_half_survey_keeps_the_west_samples_only(real_terrain):
+    site = dict(real_terrain.parse_site("jacksboro"), survey="west-half")
+    truth, grid, samples = real_terrain._data(site, 3000)
+    _, _, whole = real_terrain._data(real_terrain.parse_site("jacksboro"), 3000)
+    mid = grid.xy()[:, 0].mean()
+    assert np.all(samples.xy[:, 0] < mid)
+    assert samples.n == int(np.sum(whole.xy[:, 0] < mid))  # none lost beside the cut
+
+
+def test_far_cells_are_those_beyond_far_m_of_every_sample(real_terrain):
+    site = dict(real_terrain.parse_site("jacksboro"), survey="west-half")
+    truth, grid, samples = real_terrain._data(site, 3000)
+    pred = truth.values + 0.5  # a map 0.5 m high everywhere, sigma 0.4 m: |z| = 1.25
+    std = np.full(grid.shape, 0.4)
+    m = real_terrain._metrics(pred, std, truth, samples, grid)
+    q = grid.xy()
+    d = np.array([np.min(np.hypot(*(samples.xy - p).T)) for p in q[::97]])
+    far_share = np.mean(d >= real_terrain.FAR_M)  # every 97th cell, brute force
+    assert m["far_fraction"] == pytest.approx(far_share, abs=0.02)
+    assert 0.3 < m["far_fraction"] < 0.5  # the east half, less 50 m
+    assert m["rmse_far"] == pytest.approx(0.5)
+    assert m["cov68_far"] == 0.0 and m["cov95_far"] == 100.0
+    whole = real_terrain._data(real_terrain.parse_site("jacksboro"), 3000)[2]
+    assert real_terrain._metrics(pred, std, truth, whole, grid)["rmse_far"] is None
