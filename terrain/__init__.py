@@ -34,6 +34,7 @@ from .metrics import (
 )
 from .posterior import HyperPosterior, ShortChainWarning, sample_hyperparameters
 from .prior import ConstantMean, TriangulatedMean, as_mean_function, coarse_dem
+from .pycnophylactic import PycnophylacticMean
 from .raster_mean import RasterMean
 from .samples import ElevationSamples
 from .sampling import LandmarkNoise, sample_along_path, sample_dem
@@ -63,6 +64,7 @@ __all__ = [
     "NotFittedError",
     "NumericalError",
     "PaperTuning",
+    "PycnophylacticMean",
     "RasterMean",
     "ShortChainWarning",
     "SquaredExponential",

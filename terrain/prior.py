@@ -379,7 +379,7 @@ def as_mean_function(mean: Any) -> MeanFunction:
 
     if mean is None or (isinstance(mean, str) and mean.lower() == "constant"):
         return ConstantMean()
-    if isinstance(mean, ConstantMean | TriangulatedMean | _CheckedMean | RasterMean):
+    if isinstance(mean, ConstantMean | OffsetScaleMean | _CheckedMean):  # ours, as they are
         return mean
     if isinstance(mean, Real) and not isinstance(mean, bool):
         return ConstantMean(float(mean))
