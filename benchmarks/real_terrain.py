@@ -21,6 +21,8 @@ time and peak RSS are its own; one at a time: 2 cores):
 ``delaunay``      ``terrain.delaunay_linear`` — the reference: RMSEs are on its hull.
 ``glacimap``      ``terrain.TerrainGP(seed=0)``, the default estimator (constant mean).
 ``glacimap_dem``  the same with ``mean=terrain.coarse_dem(truth)`` (the 8 x 8 prior).
+``glacimap_pycno`` the same 8 x 8 prior read as area means:
+                  ``mean=terrain.PycnophylacticMean(coarse_dem(truth))``.
 ``rbf_tps64``     scipy ``RBFInterpolator``, thin-plate spline, 64 neighbours, smoothing 0.
 ``verde_knn``     ``verde.KNeighbors()`` defaults.
 ``verde_spline``  ``verde.BlockReduce(np.median, spacing=4)`` + ``verde.Spline()``; guarded:
@@ -60,12 +62,13 @@ METHODS = (
     "delaunay",
     "glacimap",
     "glacimap_dem",
+    "glacimap_pycno",
     "rbf_tps64",
     "verde_knn",
     "verde_spline",
     "pykrige_ok",
 )
-WITH_STD = ("glacimap", "glacimap_dem", "pykrige_ok")
+WITH_STD = ("glacimap", "glacimap_dem", "glacimap_pycno", "pykrige_ok")
 SEED = 0
 #: Samples' noise sd, m (``track_samples``' default; every result before session 21).
 NOISE_SD = 0.2
@@ -266,10 +269,14 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
         from terrain import delaunay_linear
 
         pred = delaunay_linear(samples, grid).elevation.values
-    elif method in ("glacimap", "glacimap_dem"):
-        from terrain import TerrainGP, coarse_dem
+    elif method in ("glacimap", "glacimap_dem", "glacimap_pycno"):
+        from terrain import PycnophylacticMean, TerrainGP, coarse_dem
 
-        kw = {} if method == "glacimap" else {"mean": coarse_dem(truth)}
+        kw = {
+            "glacimap": {},
+            "glacimap_dem": {"mean": coarse_dem(truth)},
+            "glacimap_pycno": {"mean": PycnophylacticMean(coarse_dem(truth))},
+        }[method]
         gp = TerrainGP(seed=0, **kw)
         tf = time.perf_counter()
         gp.fit(samples)
