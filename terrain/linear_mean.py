@@ -21,6 +21,7 @@ A mean whose ``n_coef`` is > 0 is ``m(x) = h(x)^T beta`` with explicit basis fun
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from numbers import Real
 from typing import Any
 
@@ -123,6 +124,20 @@ class OffsetScaleMean:
 
     def dem(self, xy: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        """Mean elevation (m) at ``xy`` (n, 2) -> (n,); never NaN. With ``offset="fit"``
+        this is ``a + b * dem(xy)`` and needs the coefficients (:meth:`fit`)."""
+        return self._value(xy)
+
+    @property
+    def fit(self) -> Callable[[np.ndarray, np.ndarray], Any]:
+        """``fit(xy, z)``: least squares of ``z`` on ``[1, dem(xy)]`` (``offset="fit"``
+        only; a fixed DEM has no ``fit``, so the GP uses it as it is)."""
+        if self.n_coef == 0:
+            name = type(self).__name__
+            raise AttributeError(f"{name}(offset={self.offset!r}) has nothing to fit")
+        return self.fit_ols
 
     @property
     def n_coef(self) -> int:

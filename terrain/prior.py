@@ -193,6 +193,17 @@ class ConstantMean:
         return text + ")"
 
 
+def check_coarse(coarse: Any) -> None:
+    """A coarse DEM must be an ``xarray.DataArray`` (an ``InputError`` naming ``coarse``)."""
+    if not isinstance(coarse, xr.DataArray):
+        raise bad_input(
+            "coarse",
+            type(coarse).__name__,
+            "an xarray.DataArray DEM",
+            "make one with coarse_dem(truth) or Grid.data_array",
+        )
+
+
 class TriangulatedMean(OffsetScaleMean):
     """Linear interpolation of a coarse DEM on the Delaunay triangulation of its cell centres.
 
@@ -238,13 +249,7 @@ class TriangulatedMean(OffsetScaleMean):
                 '"linear" continues the slope over one extra ring of cells',
             )
         self.extrapolate = extrapolate
-        if not isinstance(coarse, xr.DataArray):
-            raise bad_input(
-                "coarse",
-                type(coarse).__name__,
-                "an xarray.DataArray DEM",
-                "make one with coarse_dem(truth) or Grid.data_array",
-            )
+        check_coarse(coarse)
         self.grid = Grid.from_dataarray(coarse)
         coarse = north_up(coarse)  # values row-major from the north, as grid.xy()
         self.crs = self.grid.crs
@@ -284,19 +289,6 @@ class TriangulatedMean(OffsetScaleMean):
             s, j = np.nonzero(tri.neighbors == -1)
             ends = np.stack([tri.simplices[s, (j + 1) % 3], tri.simplices[s, (j + 2) % 3]], 1)
             self._edges = ends
-
-    def __call__(self, xy: np.ndarray) -> np.ndarray:
-        """Mean elevation (m) at ``xy`` (n, 2) -> (n,); never NaN. With ``offset="fit"``
-        this is ``a + b * dem(xy)`` and needs the coefficients (:meth:`fit`)."""
-        return self._value(xy)
-
-    @property
-    def fit(self) -> Callable[[np.ndarray, np.ndarray], TriangulatedMean]:
-        """``fit(xy, z)``: least squares of ``z`` on ``[1, mesh(xy)]`` (``offset="fit"``
-        only; a fixed mesh has no ``fit``, so the GP uses it as it is)."""
-        if self.n_coef == 0:
-            raise AttributeError(f"TriangulatedMean(offset={self.offset!r}) has nothing to fit")
-        return self.fit_ols
 
     def dem(self, xy: np.ndarray) -> np.ndarray:
         """The mesh itself (m) at ``xy`` (n, 2) -> (n,), before any offset; never NaN."""

@@ -33,6 +33,7 @@ from scipy.sparse.linalg import spsolve
 from .errors import bad_input
 from .grid import Grid, north_up
 from .linear_mean import OffsetScaleMean, check_xy, parse_offset
+from .prior import check_coarse
 
 __all__ = ["PycnophylacticMean"]
 
@@ -111,13 +112,7 @@ class PycnophylacticMean(OffsetScaleMean):
 
     def __init__(self, coarse: xr.DataArray, oversample: int = 10, offset: str | float = "none"):
         self.offset = parse_offset(offset)
-        if not isinstance(coarse, xr.DataArray):
-            raise bad_input(
-                "coarse",
-                type(coarse).__name__,
-                "an xarray.DataArray DEM",
-                "make one with coarse_dem(truth) or Grid.data_array",
-            )
+        check_coarse(coarse)
         if isinstance(oversample, bool) or not isinstance(oversample, int | np.integer):
             raise bad_input("oversample", oversample, "an integer >= 2", "oversample=10")
         if oversample < 2:
@@ -162,19 +157,6 @@ class PycnophylacticMean(OffsetScaleMean):
         self._interp: Callable = RegularGridInterpolator(
             (ys, xs), self.lattice[::-1], bounds_error=False, fill_value=None
         )
-
-    def __call__(self, xy: np.ndarray) -> np.ndarray:
-        """Mean elevation (m) at ``xy`` (n, 2) -> (n,); never NaN. With ``offset="fit"``
-        this is ``a + b * dem(xy)`` and needs the coefficients (:meth:`fit`)."""
-        return self._value(xy)
-
-    @property
-    def fit(self) -> Callable[[np.ndarray, np.ndarray], PycnophylacticMean]:
-        """``fit(xy, z)``: least squares of ``z`` on ``[1, surface(xy)]`` (``offset="fit"``
-        only; a fixed surface has no ``fit``, so the GP uses it as it is)."""
-        if self.n_coef == 0:
-            raise AttributeError(f"PycnophylacticMean(offset={self.offset!r}) has nothing to fit")
-        return self.fit_ols
 
     def dem(self, xy: np.ndarray) -> np.ndarray:
         """The surface itself (m) at ``xy`` (n, 2) -> (n,), before any offset: bilinear
