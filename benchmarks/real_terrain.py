@@ -247,6 +247,8 @@ def _heldout(gp, samples, grid) -> dict[str, Any]:
         local_fit_used=p.get("local_fit_used"),
         local_fit_q=p.get("local_fit_q"),
         local_fit_noise_kept=p.get("local_fit_noise_kept"),
+        heldout_reach_m=p.get("heldout_reach_m"),
+        map_beyond_reach=p.get("map_beyond_reach"),
         block_m=cv.block_size,
         rule=cv.block_size_rule,
         verdict=cv.verdict(),

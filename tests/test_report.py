@@ -259,6 +259,7 @@ def test_report_says_when_heldout_coverage_is_nominal(demo, cert_heldout, tmp_pa
         map_coverage_95=0.95,
         map_coverage_68_interval=[0.6, 0.75],
         map_coverage_95_interval=[0.9, 0.97],
+        map_beyond_reach=0.0,  # every cell within the check's reach
     )
     cert = dict(cert_heldout, heldout_calibration=heldout_block(good))
     assert cert["heldout_calibration"]["verdict"] == []
@@ -267,3 +268,28 @@ def test_report_says_when_heldout_coverage_is_nominal(demo, cert_heldout, tmp_pa
     ).read_text(encoding="utf-8")
     assert 'class="warn" id="heldout-verdict"' not in html
     assert '<p class="pass" id="heldout-verdict">' in html and "within 5 percentage" in html
+
+
+def test_report_says_where_the_heldout_check_cannot_reach(demo, cert_heldout, heldout, tmp_path):
+    # The fixture's survey leaves a fifth of its 30 x 30 map farther from the samples than
+    # 99 % of the held-out samples lay from their folds' data (measured: 20 %, 59 m).
+    from toolkit.certify import heldout_block
+
+    block = cert_heldout["heldout_calibration"]
+    share, reach = heldout.pooled["map_beyond_reach"], heldout.pooled["heldout_reach_m"]
+    assert block["map_beyond_reach"] == share and block["heldout_reach_m"] == reach
+    # by hand: the held-out samples' distances to their folds' data, and the map's cells'
+    from scipy.spatial import cKDTree
+
+    xy, fold = demo.samples.xy, heldout.fold
+    d = [cKDTree(xy[fold != f]).query(p)[0] for p, f in zip(xy, fold, strict=True)]
+    assert reach == pytest.approx(np.quantile(d, 0.99))
+    assert share > 0.05
+    said = [v for v in block["verdict"] if "cannot vouch" in v]
+    assert len(said) == 1 and f"{100 * share:.0f} % of the map" in said[0]
+    near = heldout_block(dict(block, map_beyond_reach=0.05))  # at the threshold: silent
+    assert not [v for v in near["verdict"] if "cannot vouch" in v]
+    html = write_report(
+        tmp_path / "r.html", product=demo.maps["gp_satellite"], certificate=cert_heldout
+    ).read_text(encoding="utf-8")
+    assert "cannot vouch for the 1-sigma there" in html

@@ -39,6 +39,8 @@ _HELDOUT_MAP = (
     "map_coverage_95_interval",
     "heldout_distance_median_m",
     "map_distance_median_m",
+    "heldout_reach_m",
+    "map_beyond_reach",
     "along_track_shared",
     "heldout_dt_median_s",
     "matched_on",
