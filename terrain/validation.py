@@ -70,8 +70,7 @@ __all__ = [
 ]
 
 REFIT_MODES = ("hyperparameters-fixed", "all")
-#: Quantile of the held-out samples' distances to their folds' data that bounds the check's
-#: reach (``pooled["heldout_reach_m"]``).
+#: Quantile of held-out distances to the folds' data bounding the check's reach.
 REACH_QUANTILE = 0.99
 _HYPER_FIXED = {"nugget_bounds": "fixed", "optimize": False}
 
@@ -475,9 +474,8 @@ def cross_validate(
         )
     pooled["heldout_distance_median_m"] = float(np.median(heldout_d))
     pooled["map_distance_median_m"] = float(np.median(target_d))
-    # The check's reach: cells farther from data than 99 % of the held-out samples were from
-    # their folds' data are not vouched for (docs/terrain.md "The coarse prior read as area
-    # means": 28-61 % at 68 there on half-surveyed sites, unseen by the check).
+    # The check's reach: cells farther from data than its held-out samples are not vouched
+    # for (docs/terrain.md "σ checked without truth": half-surveyed sites).
     pooled["heldout_reach_m"] = float(np.quantile(heldout_d, REACH_QUANTILE))
     pooled["map_beyond_reach"] = float(np.mean(target_d > pooled["heldout_reach_m"]))
     levels, observed = calibration_curve(mu, sd, samples.z)
