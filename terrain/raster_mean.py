@@ -34,6 +34,7 @@ from .errors import NotFittedError, bad_input
 from .grid import Grid, as_crs, check_same_crs
 from .linear_mean import OffsetScaleMean, check_xy, check_z, coefficient_table, parse_offset
 from .prior import TriangulatedMean, coarse_dem
+from .pycnophylactic import PycnophylacticMean
 from .raster_boxes import bbox as _bbox
 from .raster_boxes import box as _box
 from .raster_boxes import fmt_box as _fmt
@@ -55,6 +56,8 @@ PAPER_CELLS = (8, 8)
 #: paper's over the map (a 30 m DEM over 600 m: 75 m cells, 2.5 x; the default site's 75 m
 #: prior: 1 x, the paper's). Below it the two differ by the interpolation only.
 AUTO_OWN_FACTOR = 2.0
+#: Readings of ``cells=`` coarse cells: the paper's mesh, or the cells as area means.
+COARSE_READINGS = {"mesh": TriangulatedMean, "area-means": PycnophylacticMean}
 _MARGIN_CELLS = 2  # source cells of margin around the requested bounds
 _GROW = 0.10  # a lazy re-bind grows the requested box by this fraction per side
 _MAX_CELLS = 16_000_000  # the bound raster's cell size grows beyond this many cells
@@ -73,7 +76,7 @@ class _Bound:
     n_nodata: int
     max_fill_m: float
     interp: Any = None
-    tri: TriangulatedMean | None = None
+    tri: TriangulatedMean | PycnophylacticMean | None = None
 
 
 class _Shared:
@@ -110,11 +113,15 @@ class RasterMean(OffsetScaleMean):
     cells : tuple of int, "auto" or None
         ``(ny, nx)``: the paper's coarse prior — the bound DEM block-averaged into this many
         cells over the first bound bounds (:func:`~terrain.prior.coarse_dem`) and
-        interpolated by :class:`~terrain.prior.TriangulatedMean` (defined on all of R^2).
+        interpolated by ``coarse`` (defined on all of R^2).
         ``"auto"``: the paper's :data:`PAPER_CELLS` unless the DEM's own cells are at least
         :data:`AUTO_OWN_FACTOR` times finer than those over the first bound bounds, then
         the DEM's own (decided at the first bind; ``cells`` then holds the choice).
         ``None`` (default): the DEM's own cells.
+    coarse : {"mesh", "area-means"}
+        How ``cells`` are read: the paper's :class:`~terrain.prior.TriangulatedMean` through
+        the cells' centres (default), or :class:`~terrain.pycnophylactic.PycnophylacticMean`,
+        the smoothest surface keeping each cell's mean (docs/terrain.md, session 21).
     crs : CRS-like, optional
         The map CRS (projected, metres), when known up front; else fixed by the first bind.
     nodata : float, optional
@@ -147,6 +154,7 @@ class RasterMean(OffsetScaleMean):
         resampling: str = "bilinear",
         offset: str | float = "fit",
         cells: tuple[int, int] | None = None,
+        coarse: str = "mesh",
         crs: Any = None,
         nodata: float | None = None,
         source_crs: Any = None,
@@ -169,6 +177,9 @@ class RasterMean(OffsetScaleMean):
                 raise bad_input("cells", cells, "(ny, nx) integers >= 1", "e.g. (8, 8)")
             cells = (cy, cx)
         self.cells = cells
+        if coarse not in COARSE_READINGS:
+            raise bad_input("coarse", coarse, f"one of {list(COARSE_READINGS)}", 'coarse="mesh"')
+        self.coarse = coarse
         self._declared_crs = None if crs is None else as_crs(crs, "crs")
         self.source: RasterSource = open_source(source, source_crs, nodata)
         self._shared = _Shared()
@@ -271,7 +282,8 @@ class RasterMean(OffsetScaleMean):
         values, n_nodata, max_fill = self._warp(grid, to_src, requested)
         bound = _Bound(crs, lattice, grid, values, requested, footprint, n_nodata, max_fill)
         if self.cells is not None:
-            bound.tri = TriangulatedMean(coarse_dem(self._dem_array(grid, values), self.cells))
+            surface = COARSE_READINGS[self.coarse]
+            bound.tri = surface(coarse_dem(self._dem_array(grid, values), self.cells))
         else:
             from scipy.interpolate import RegularGridInterpolator
 
@@ -416,6 +428,7 @@ class RasterMean(OffsetScaleMean):
             "source_nodata": src.nodata,
             "source_vertical": src.vertical,
             "resampling": self.resampling,
+            "coarse": self.coarse,
             "offset": self.offset,
             "cells": None if self.cells is None else list(self.cells),
             "cells_rule": "auto" if self.cells_auto else "given",
@@ -439,6 +452,7 @@ class RasterMean(OffsetScaleMean):
         where = "unbound" if bound is None else f"crs={bound.crs.to_string()}"
         nodata = "" if bound is None else f", n_nodata={bound.n_nodata}"
         cells = "" if self.cells is None else f", cells={self.cells}"
+        cells += "" if self.coarse == "mesh" else f", coarse={self.coarse!r}"
         return (
             f"RasterMean({self.source.label!r}, source_crs={self.source.crs.to_string()}, "
             f"{where}, resampling={self.resampling!r}{cells}{nodata}, {self._coef_text()})"

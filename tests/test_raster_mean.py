@@ -266,6 +266,22 @@ def test_cells_equal_triangulated_coarse_dem():
     assert m.describe()["cells"] == [8, 8]
 
 
+def test_cells_read_as_area_means():
+    from terrain import PycnophylacticMean
+
+    grid = Grid.from_bounds(INNER, 2.0)
+    m = RasterMean(utm_array(bumpy), offset="none", cells=(8, 8), coarse="area-means")
+    m = m.for_grid(grid)
+    ref = PycnophylacticMean(coarse_dem(m.bound_dem, cells=(8, 8)))
+    xy = np.vstack([points(), [[W, N], [W + 9000.0, N + 50.0]]])  # inside and far outside
+    np.testing.assert_allclose(m(xy), ref(xy), rtol=0, atol=1e-9)
+    assert m.describe()["coarse"] == "area-means" and "coarse='area-means'" in repr(m)
+    mesh = RasterMean(utm_array(bumpy), offset="none", cells=(8, 8)).for_grid(grid)
+    assert np.abs(mesh(xy) - m(xy)).max() > 0.01  # not the mesh
+    with pytest.raises(InputError, match="coarse"):
+        RasterMean(utm_array(bumpy), cells=(8, 8), coarse="triangles")
+
+
 def test_describe_is_json_safe(tmp_path):
     import json
 

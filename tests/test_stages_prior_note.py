@@ -78,6 +78,20 @@ def test_prior_cells_setting():
         load_scenario(overrides={"prior": {"cells": "paper"}})
 
 
+def test_prior_coarse_setting():
+    from terrain import InputError
+    from toolkit.config import load_scenario
+    from toolkit.processing import prior_mean
+
+    dem = _dem(75.0)
+    assert load_scenario()["prior"]["coarse"] == "mesh"
+    assert prior_mean(dem, load_scenario()).coarse == "mesh"
+    area = {"prior": {"cells": [8, 8], "coarse": "area-means"}}
+    assert prior_mean(dem, load_scenario(overrides=area)).coarse == "area-means"
+    with pytest.raises(InputError, match=r"prior\.coarse"):
+        load_scenario(overrides={"prior": {"coarse": "triangles"}})
+
+
 def test_printed_warnings_keep_bracketed_table_names():
     """Rich markup used to eat "[prior]" from printed warnings (" cells = []")."""
     from rich.console import Console

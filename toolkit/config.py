@@ -78,6 +78,8 @@ compare_constant_mean = false  # simulation: also fit a constant-mean GP, scored
 [prior]                        # the satellite DEM (prior.tif): RasterMean, a + b * DEM by GLS
 cells = "auto"                 # the paper's triangulated 8 x 8 mean unless the DEM's own cells
                                # are >= 2 x finer (then its own); [8, 8]: always; []: its own
+coarse = "mesh"                # those cells through their centres (the paper's), or
+                               # "area-means": the smoothest surface keeping each cell's mean
 resampling = "bilinear"        # reprojection of a DEM in another CRS
 resolution_m = 75.0            # simulation: cell of the DEM written (75 m = 8 x 8 on 600 m)
 offset_m = 1.5                 # simulation: its vertical datum offset against GPS heights (m)
@@ -168,6 +170,8 @@ def _check(user: dict[str, Any], ref: dict[str, Any], where: tuple[str, ...]) ->
         if (*where, key) == ("prior", "cells"):  # "auto" or a list: [8, 8], [] (own cells)
             if not (value == "auto" or isinstance(value, list)):
                 raise bad_input(path, value, '"auto" or a list [ny, nx] ([] = own cells)', "")
+        elif (*where, key) == ("prior", "coarse") and value not in ("mesh", "area-means"):
+            raise bad_input(path, value, '"mesh" or "area-means"', 'coarse = "mesh"')
         elif isinstance(value, dict):
             _check(value, ref.get(key, {}) if isinstance(ref.get(key), dict) else {}, (*where, key))
         elif key in ref and not isinstance(ref[key], dict):

@@ -173,7 +173,12 @@ def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
     cells = cfg.get("cells", "auto")
     if not (isinstance(cells, str) and cells == "auto"):  # a list: [8, 8], or [] (own cells)
         cells = tuple(int(c) for c in cells) or None
-    mean = RasterMean(prior, resampling=cfg.get("resampling", "bilinear"), cells=cells)
+    mean = RasterMean(
+        prior,
+        resampling=cfg.get("resampling", "bilinear"),
+        cells=cells,
+        coarse=cfg.get("coarse", "mesh"),
+    )
     return _named_by_file(mean)
 
 
