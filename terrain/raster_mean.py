@@ -76,7 +76,7 @@ class _Bound:
     n_nodata: int
     max_fill_m: float
     interp: Any = None
-    tri: TriangulatedMean | PycnophylacticMean | None = None
+    coarse: TriangulatedMean | PycnophylacticMean | None = None  # the cells= surface
 
 
 class _Shared:
@@ -283,7 +283,7 @@ class RasterMean(OffsetScaleMean):
         bound = _Bound(crs, lattice, grid, values, requested, footprint, n_nodata, max_fill)
         if self.cells is not None:
             surface = COARSE_READINGS[self.coarse]
-            bound.tri = surface(coarse_dem(self._dem_array(grid, values), self.cells))
+            bound.coarse = surface(coarse_dem(self._dem_array(grid, values), self.cells))
         else:
             from scipy.interpolate import RegularGridInterpolator
 
@@ -373,8 +373,8 @@ class RasterMean(OffsetScaleMean):
         """The DEM (m) at ``xy`` (n, 2) in the map CRS, before any offset; never NaN."""
         xy = check_xy(xy)
         bound = self._require_bound(xy)
-        if bound.tri is not None:
-            return bound.tri.dem(xy)
+        if bound.coarse is not None:
+            return bound.coarse.dem(xy)
         g = bound.grid
         x, y = g.x, g.y
         outside = (xy[:, 0] < x[0]) | (xy[:, 0] > x[-1]) | (xy[:, 1] < y[-1]) | (xy[:, 1] > y[0])
