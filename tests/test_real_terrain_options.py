@@ -80,3 +80,27 @@ def test_far_cells_are_those_beyond_far_m_of_every_sample(real_terrain):
     assert m["cov68_far"] == 0.0 and m["cov95_far"] == 100.0
     whole = real_terrain._data(real_terrain.parse_site("jacksboro"), 3000)[2]
     assert real_terrain._metrics(pred, std, truth, whole, grid)["rmse_far"] is None
+
+
+def test_the_rescaled_coverage_is_the_truths_under_sigma_times_sqrt_kappa(real_terrain):
+    # Hand computation: errors N(0, 0.5^2) against a stated 1-sigma of 1 m read 95.4 % at
+    # 68 (P(|z| < 2)); kappa = 0.25 rescales the sigma to 0.5 m, the errors' own, so the
+    # coverages become the normal's 68.3 and 95.0 % (to ~0.3 points with 200,000 cells).
+    rng = np.random.default_rng(0)
+    truth = np.zeros((400, 500))
+    pred = rng.normal(0.0, 0.5, truth.shape)
+    std = np.ones_like(truth)
+    pred[0, :10] = np.nan  # undefined cells are left out, as in the benchmark's coverages
+    out = real_terrain.rescaled_coverage(pred, std, truth, 0.25)
+    assert out["cov68_rescaled"] == pytest.approx(68.27, abs=0.4)
+    assert out["cov95_rescaled"] == pytest.approx(95.0, abs=0.3)
+    assert real_terrain.rescaled_coverage(pred, std, truth, 1.0)["cov68_rescaled"] > 95.0
+    assert real_terrain.rescaled_coverage(pred, std, truth, None) == {}
+
+
+def test_the_rescaled_verdict_needs_both_levels_in_band(real_terrain):
+    row = {"cov68_rescaled": 70.0, "cov95_rescaled": 95.0}
+    assert real_terrain._rescaled_verdict(row)["rescaled_ok"] == "PASS"
+    assert real_terrain._rescaled_verdict({**row, "cov95_rescaled": 91.0})["rescaled_ok"] == "MISS"
+    assert real_terrain._rescaled_verdict({**row, "cov68_rescaled": 77.0})["rescaled_ok"] == "MISS"
+    assert real_terrain._rescaled_verdict({}) == {}
