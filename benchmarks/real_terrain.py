@@ -30,6 +30,11 @@ time and peak RSS are its own; one at a time: 2 cores):
 ``pykrige_ok``    PyKrige ordinary kriging, spherical variogram on <= 3,000 samples (a
                   seeded subsample at n = 50,000), 64-point moving window, C backend.
 
+Every glacimap row also runs the user's held-out check (``terrain.cross_validate``), timed
+apart, and records the truth's coverage with its 1-sigma x sqrt(kappa), kappa the check's
+one-scale ratio (``cov68_rescaled``: what a held-out recalibration would give; measured, not
+the default).
+
 Real DEMs come from Debian packages; when they cannot be fetched the benchmark prints why
 and writes ``{"skipped": reason}``.
 """
