@@ -26,7 +26,7 @@ from .errors import NotFittedError, bad_input
 from .exact_predict import predict_exact
 from .gp_hyper import HyperparameterMixin
 from .gp_mean import GLS_MAX_SAMPLES, bind_mean, gls_coefficients, n_coef
-from .gp_settings import check_settings
+from .gp_settings import check_samples, check_settings
 from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
 from .kernels import Kernel
@@ -43,6 +43,7 @@ from .tiled import (
     predict_tiled,
     warn_long_scale,
 )
+from .window_evidence import WindowPlan
 
 __all__ = ["TerrainGP"]
 
@@ -199,20 +200,7 @@ class TerrainGP(HyperparameterMixin):
             At least 3 samples; their CRS must match the prior mean's, if both have one.
         """
         self._check_settings()
-        if not isinstance(samples, ElevationSamples):
-            raise bad_input(
-                "samples",
-                type(samples).__name__,
-                "terrain.ElevationSamples",
-                "wrap arrays with ElevationSamples(xy, z, z_var)",
-            )
-        if samples.n < 3:
-            raise bad_input(
-                "samples",
-                f"{samples.n} samples",
-                "at least 3 samples to fit a surface",
-                "collect more data or widen the selection",
-            )
+        check_samples(samples)  # terrain/gp_settings.py
         t0 = time.perf_counter()
         rng = np.random.default_rng(self.seed)
         mean = bind_mean(as_mean_function(self.mean), samples.crs, samples.xy)
@@ -231,6 +219,7 @@ class TerrainGP(HyperparameterMixin):
         self.fit_index_ = np.arange(samples.n)
         self.optimizer_runs_ = []
         self.kernel_scores_ = []
+        self.window_plan_ = None
         if self.optimize and self.max_fit_samples is not None and samples.n > self.max_fit_samples:
             self.fit_index_ = np.sort(
                 rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
@@ -238,6 +227,10 @@ class TerrainGP(HyperparameterMixin):
         widest = largest_gap(samples.xy)  # the survey's widest gap, m (tiling, near ties)
         if self._searches_kernel:
             idx = self.fit_index_
+            # The samples the subset leaves out score each candidate in windows (their own
+            # generator, spawned: the main stream and every other draw stay as they were).
+            windows = WindowPlan.build(X, resid, self.z_var_, idx, rng.spawn(1)[0])
+            self.window_plan_ = windows
             choice = select_kernel(
                 X[idx],
                 resid[idx],
@@ -248,6 +241,7 @@ class TerrainGP(HyperparameterMixin):
                 nugget_bounds=self.nugget_bounds,
                 spacing=median_spacing(X),
                 widest_gap=widest,
+                windows=windows,
                 rng=rng,
             )
             kernel, nugget = choice.kernel, choice.nugget
@@ -475,7 +469,7 @@ class TerrainGP(HyperparameterMixin):
             zip(self.kernel_.param_names, np.exp(self.kernel_.theta).tolist(), strict=True)
         )
         hyper["nugget"] = self.nugget_
-        method = "exact GP (Rasmussen & Williams Alg. 2.1)"
+        method, wp = "exact GP (Rasmussen & Williams Alg. 2.1)", self.window_plan_
         if self.method_ == "tiled":
             sd = self.amplitude_prior_sd if self.local_amplitude_ else None
             method = self.tiles_.describe(sd)
@@ -490,6 +484,7 @@ class TerrainGP(HyperparameterMixin):
             "log_marginal_likelihood": self.log_marginal_likelihood_value_,
             "jitter": self.jitter_,
             "kernel_selection": json.dumps(json_rows(self.kernel_scores_)),
+            "kernel_windows": "none" if wp is None else wp.describe(),
             "mean_coefficients": json.dumps(mean_coefficients(self.mean_)),
             "degenerate_fit": int(self.degenerate_),
             "seed": int(self.seed),

@@ -12,12 +12,31 @@ import numpy as np
 
 from .errors import bad_input
 from .kernel_search import candidate_names
+from .samples import ElevationSamples
 from .tiled import TileSpec
 
 if TYPE_CHECKING:
     from .gp import TerrainGP
 
-__all__ = ["check_settings"]
+__all__ = ["check_samples", "check_settings"]
+
+
+def check_samples(samples: object) -> None:
+    """Raise ``InputError`` unless ``samples`` is an ``ElevationSamples`` of 3 or more."""
+    if not isinstance(samples, ElevationSamples):
+        raise bad_input(
+            "samples",
+            type(samples).__name__,
+            "terrain.ElevationSamples",
+            "wrap arrays with ElevationSamples(xy, z, z_var)",
+        )
+    if samples.n < 3:
+        raise bad_input(
+            "samples",
+            f"{samples.n} samples",
+            "at least 3 samples to fit a surface",
+            "collect more data or widen the selection",
+        )
 
 
 def check_settings(gp: TerrainGP) -> None:

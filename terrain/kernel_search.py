@@ -42,6 +42,7 @@ from .heldout_weights import sample_spacing
 from .kernels import Matern, SquaredExponential
 from .tiled import shortest_lengthscale
 from .vecchia import VecchiaPlan, nearest_neighbour_predict, vecchia_lml
+from .window_evidence import WindowPlan, score_candidates
 
 __all__ = [
     "FAMILY",
@@ -337,6 +338,7 @@ def select_kernel(
     criterion: str = "bic",
     gap: float | None = None,
     widest_gap: float | None = None,
+    windows: WindowPlan | None = None,
     rng: np.random.Generator,
     workers: int | None = None,
 ) -> KernelChoice:
@@ -374,6 +376,9 @@ def select_kernel(
         The survey's widest gap, m (:func:`terrain.tiled.largest_gap` of *all* samples):
         an SE + SE winner whose short scale is at most this keeps a near tie. Default
         ``None``: every near tie goes to the Matern.
+    windows : terrain.window_evidence.WindowPlan, optional
+        The samples outside the fit subset: candidates are scored ``BIC - 2 * window_lml``
+        (their evidence by the chain rule), near ties read that score. ``None``: the BIC.
     rng : numpy.random.Generator
         Orders the Vecchia plan and deals the CV blocks.
     workers : int, optional
@@ -384,7 +389,8 @@ def select_kernel(
     -------
     KernelChoice
         ``scores`` rows: name, kernel (repr), lml (nats, the Vecchia likelihood of Eq 9
-        named in ``likelihood``), n_params, bic, delta_bic (to the best), nugget,
+        named in ``likelihood``), n_params, bic, delta_bic (to the best), window_lml
+        (nats, or None), score (``bic - 2 window_lml``, or the BIC), delta_score, nugget,
         evaluations, likelihood, selected.
     """
     n = r.size
@@ -450,7 +456,8 @@ def select_kernel(
     with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
         for row, scores in zip(scored, pool.map(cv, scored), strict=True):
             row.update(scores, cv_block_m=block)
-    key = "bic" if criterion == "bic" else "cv_nlpd"
+    score_candidates(scored, fits, windows, workers)
+    key = "score" if criterion == "bic" else "cv_nlpd"
     ok = [r_ for r_ in rows if r_["bic"] is not None]
     if not ok:
         raise NumericalError(
@@ -466,15 +473,17 @@ def select_kernel(
         # Spatial Data, 1.7; measured on real DEMs: docs/terrain.md "Near ties").
         # A single SE must lead by more: one length carries every scale (SINGLE_SE_MARGIN).
         margin = SINGLE_SE_MARGIN if best["name"] == "se" else BIC_TIE
-        tied = [r_ for r_ in ok if r_["bic"] - best["bic"] <= margin]
+        tied = [r_ for r_ in ok if r_["score"] - best["score"] <= margin]
         finite = [r_ for r_ in tied if np.isfinite(smoothness(r_["name"]))]
         kept = se_sum_inside_gaps(best["name"], fits[best["name"]][0], widest_gap)
         if not np.isfinite(smoothness(best["name"])) and finite and not kept:
             best = finite[0]  # ok is sorted by BIC
-    low = ok[0]["bic"]
+    low = min(r_["bic"] for r_ in ok)
+    top = min(r_["score"] for r_ in ok)
     for r_ in rows:
         r_["selected"] = r_ is best
         r_["delta_bic"] = None if r_["bic"] is None else r_["bic"] - low
+        r_["delta_score"] = None if r_["bic"] is None else r_["score"] - top
     rows.sort(key=lambda r_: (not r_["selected"], np.inf if r_["bic"] is None else r_[key]))
     k, nug, _, _ = fits[best["name"]]
     # Refine the winner on larger conditioning sets (closer to the exact Eq 9).
