@@ -57,9 +57,7 @@ def test_a_rougher_kernel_than_the_ground_scores_lower():
     X = rng.uniform(-30, 30, (400, 2))
     r = 2.0 * np.sin(X[:, 0] / 12.0) * np.cos(X[:, 1] / 15.0) + rng.normal(0, 0.05, 400)
     plan = WindowPlan([X], [r], [np.full(400, 0.0025)], 60.0, 400, 0, 0, 0)
-    assert plan.lml(SquaredExponential(2.0, 15.0), 0.0) > plan.lml(
-        Matern(2.0, 15.0, nu=1.5), 0.0
-    )
+    assert plan.lml(SquaredExponential(2.0, 15.0), 0.0) > plan.lml(Matern(2.0, 15.0, nu=1.5), 0.0)
 
 
 def _survey(n=6000, seed=0):
