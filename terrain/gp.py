@@ -64,7 +64,9 @@ class TerrainGP(HyperparameterMixin):
     kernel : "auto", family name(s), Kernel or None
         Covariance of the terrain deviation from the mean. ``"auto"`` (default) fits the
         family SE (Eq 1), Matérn 3/2, 5/2, 7/2 and their two-scale sums on the fit subset
-        and keeps the best penalised evidence (BIC of Eq 9, :mod:`terrain.kernel_search`);
+        and keeps the best penalised evidence (BIC of Eq 9, :mod:`terrain.kernel_search`)
+        with the evidence of the samples the subset left out, in windows
+        (:mod:`terrain.window_evidence`);
         a family name or a list of names restricts the search; a Kernel object is fitted
         from its initial hyperparameters and bounds; ``None``: ``SquaredExponential``
         started at the residual variance and a tenth of the data extent.
@@ -117,6 +119,8 @@ class TerrainGP(HyperparameterMixin):
     nugget_ : float
         Fitted (or fixed) nugget, m^2; the lower bound of ``nugget_bounds`` when the fitted
         one became ``microscale_``.
+    window_plan_ : terrain.window_evidence.WindowPlan or None
+        The left-out samples' windows that scored the candidates; ``None`` without any.
     microscale_ : terrain.microscale.Microscale or None
         A nugget fitted on top of stated noise, kept in the 1-sigma as ground below the fit
         subset's spacing (a part of ``kernel_``); ``None`` without one.

@@ -19,9 +19,9 @@ m = 10 earlier neighbours from doubling blocks, the winner refined at m = 25) wi
 L-BFGS-B and its exact gradient, started from the best of a small grid of length scales
 (single kernels) or from the family's single fit split into two scales (sums). That
 likelihood is not Eq 9 to a few nats on dense data (docs/terrain.md "The kernel search's
-likelihood is not Eq 9 to a few nats").
-Why BIC and not cross-validated NLPD, and how it was measured: docs/terrain.md
-"Kernel by evidence".
+likelihood is not Eq 9 to a few nats"). Why BIC and not cross-validated NLPD: docs/terrain.md
+"Kernel by evidence". The samples the subset leaves out add their evidence, in windows,
+to each candidate's score (:mod:`terrain.window_evidence`).
 """
 
 from __future__ import annotations
