@@ -41,6 +41,9 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 from threadpoolctl import threadpool_limits
 
+from .nogil_lapack import cholesky_lower, solve_lower
+from .radial_table import tabulate
+
 __all__ = [
     "BUDGET_SAMPLES",
     "MAX_WINDOW_SAMPLES",
@@ -185,20 +188,27 @@ class WindowPlan:
         factor.
         """
         total = 0.0
+        # Kernel matrices from a distance table (terrain.radial_table): a window's samples
+        # lie in a square of side `side`, so no distance exceeds its diagonal.
+        kern = tabulate(kernel, np.sqrt(2.0) * self.side) or kernel
         for X, r, v in zip(self.X, self.r, self.z_var, strict=True):
-            C = kernel(X)
+            C = kern(X)
             C[np.diag_indices_from(C)] += v + nugget
-            H = np.column_stack([np.ones(X.shape[0]), X])
-            try:
-                f = cho_factor(C, lower=True, overwrite_a=True, check_finite=False)
-                CiH = cho_solve(f, H, check_finite=False)
-                Cir = cho_solve(f, r, check_finite=False)
-                g = cho_factor(H.T @ CiH, lower=True, check_finite=False)
+            # One factor, one triangular solve for [H, r]; both release the GIL
+            # (terrain.nogil_lapack), so the candidates' threads run side by side.
+            L = cholesky_lower(C)
+            if L is None:
+                return -np.inf
+            B = np.asfortranarray(np.column_stack([np.ones(X.shape[0]), X, r]))
+            W = solve_lower(L, B)  # [L^-1 H, L^-1 r]
+            Wh, u = W[:, :3], W[:, 3]
+            try:  # H^T C^-1 H = Wh^T Wh, H^T C^-1 r = Wh^T u, r^T C^-1 r = u^T u
+                g = cho_factor(Wh.T @ Wh, lower=True, check_finite=False)
             except (LinAlgError, ValueError):
                 return -np.inf
-            Hr = H.T @ Cir
-            quad = float(r @ Cir - Hr @ cho_solve(g, Hr, check_finite=False))
-            logdet = 2.0 * float(np.log(np.diag(f[0])).sum() + np.log(np.diag(g[0])).sum())
+            Hr = Wh.T @ u
+            quad = float(u @ u - Hr @ cho_solve(g, Hr, check_finite=False))
+            logdet = 2.0 * float(np.log(np.diag(L)).sum() + np.log(np.diag(g[0])).sum())
             total += -0.5 * (quad + logdet + (r.size - 3) * np.log(2.0 * np.pi))
         return total
 
