@@ -79,3 +79,22 @@ def test_bootstrap_same_bits_for_any_thread_count(monkeypatch):
         outs.append(hd.map_calibration(resid, lat, noise, w, block, np.random.default_rng(0), 20))
     assert outs[0] == outs[1]
     assert outs[0]["map_coverage_68_interval"] is not None
+
+
+def test_mixture_em_matches_the_textbook_responsibilities():
+    # Laird (1978) EM written out: responsibilities g_ik = lik_ik pi_k / sum_k lik_ik pi_k,
+    # new pi_k = sum_i w_i g_ik / sum_i w_i; the module never forms g (two mat-vecs a step).
+    from terrain.heldout_design import _mixture
+
+    rng = np.random.default_rng(4)
+    lik = rng.uniform(0.01, 1.0, (400, 24))
+    w = rng.uniform(0.0, 2.0, 400)
+    w[rng.uniform(size=400) < 0.3] = 0.0
+    pi = np.full(24, 1.0 / 24)
+    for _ in range(50):
+        g = lik * pi
+        g /= g.sum(axis=1, keepdims=True)
+        pi = (w @ g) / w.sum()
+    out = _mixture(lik, w, np.full(24, 1.0 / 24), 50)
+    assert np.allclose(out, pi, rtol=1e-12, atol=1e-15)
+    assert out.sum() == pytest.approx(1.0, abs=1e-12)
