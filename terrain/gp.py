@@ -305,10 +305,7 @@ class TerrainGP(HyperparameterMixin):
             idx = self.fit_index_
             if idx.size == samples.n:
                 idx = np.sort(rng.choice(samples.n, size=min(samples.n, 2000), replace=False))
-            th, r, zv = self._theta(kernel, nugget), self.y_resid_[idx], self.z_var_[idx]
-            lml = self._lml(th, kernel, X[idx], r, zv, False)
-            self.log_marginal_likelihood_value_ = lml
-            self.fit_seconds_ = time.perf_counter() - t0
+            self._defer_lml(self._theta(kernel, nugget), kernel, idx)
             return self
 
         # R&W Alg. 2.1 lines 2-3: L = chol(K + Sigma), alpha = L^T \ (L \ y)

@@ -193,3 +193,30 @@ def test_ill_conditioned_matrix_gets_jitter_with_warning():
         gp.fit(ElevationSamples(xy, z))
     assert gp.jitter_ > 0
     assert np.all(np.isfinite(gp.predict(xy)))
+
+
+def test_tiled_fit_reports_eq9_on_its_subset_when_read():
+    # The tiled fit's Eq 9 (no Vecchia value: fixed kernel) is factored on first read; the
+    # value is the exact Gaussian log density of the fit subset (reference: scipy's
+    # multivariate normal on the same matrix), and an unfitted estimator has none.
+    from scipy.stats import multivariate_normal
+
+    from terrain.kernels import SquaredExponential
+
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 300, (2500, 2))
+    z = np.sin(xy[:, 0] / 30.0) * 3.0 + rng.normal(0, 0.1, 2500)
+    s = ElevationSamples(xy, z, np.full(2500, 0.01), crs="EPSG:32608")
+    kernel = SquaredExponential(5.0, 30.0)
+    gp = TerrainGP(kernel=kernel, optimize=False, method="tiled", max_fit_samples=400).fit(s)
+    pending = gp.__dict__["_lml_pending"]
+    assert pending is not None  # not factored by fit
+    idx = pending[2]  # the fit subset, or 2,000 of all samples when the fit used them all
+    assert idx.size == min(gp.fit_index_.size, 2000)
+    C = kernel(gp.X_train_[idx]) + np.diag(gp.z_var_[idx] + gp.nugget_)
+    ref = multivariate_normal(np.zeros(idx.size), C).logpdf(gp.y_resid_[idx])
+    assert gp.log_marginal_likelihood_value_ == pytest.approx(ref, rel=1e-10)
+    assert gp.__dict__["_lml_pending"] is None
+    assert gp.log_marginal_likelihood() == gp.log_marginal_likelihood_value_
+    assert gp.provenance()["log_marginal_likelihood"] == gp.log_marginal_likelihood_value_
+    assert not hasattr(TerrainGP(), "log_marginal_likelihood_value_")
