@@ -1,0 +1,189 @@
+"""What the fit's costly steps buy: the default fit against variants of it, on real terrain.
+
+    python benchmarks/fit_variants.py --variants default no-refine refine-m40 budget-8000 \
+        exact-subset window-refit --sites bei glacier olinda \
+        --out benchmarks/results/fit_variants.json
+
+Each variant maps the sites of ``benchmarks/real_terrain.py`` (50,000 samples, constant mean,
+window 0 unless ``NAME:WINDOW``) onto the truth's own 2 m cells and reports the fit's time,
+the kernel, RMSE against the truth and the truth's share inside the 95 % and 68 % intervals
+(docs/terrain.md "Performance notes", session 25):
+
+``default``       ``TerrainGP(seed=0)``.
+``no-refine``     the search's winner kept as screened (Vecchia m = 10), not refined at 25.
+``refine-mN``     the winner refined with Vecchia conditioning sets of N instead of 25.
+``budget-N``      the window evidence scores at most N left-out samples (default 16,000).
+``exact-subset``  the default's pick (its non-micro-scale parts) refitted by the exact Eq 9
+                  on the fit subset (``n_restarts=0``).
+``window-refit``  the default's shortest part (variance, length) refitted on the exact subset
+                  Eq 9 plus the window evidence (the chain rule's two terms; Nelder-Mead
+                  from the default's values), the rest held.
+
+Variants run in one process one after another (they patch module constants), so the fit
+times are comparable within a run only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from _harness import table, write_json  # noqa: E402
+from real_terrain import _data, _provenance, parse_site  # noqa: E402
+
+N = 50_000
+
+
+def _scores(gp, truth, grid) -> dict[str, float]:
+    ds = gp.predict_grid(grid)
+    mean, sd = ds.elevation.values, ds.elevation_std.values
+    t = np.asarray(truth.values, dtype=float).reshape(mean.shape)
+    ok = np.isfinite(t) & np.isfinite(mean) & np.isfinite(sd)
+    z = np.abs(mean - t)[ok] / sd[ok]
+    return {
+        "rmse_m": float(np.sqrt(np.mean((mean - t)[ok] ** 2))),
+        "cov95": float(100.0 * np.mean(z <= 1.96)),
+        "cov68": float(100.0 * np.mean(z <= 1.0)),
+    }
+
+
+def _short_part_refit(gp, samples) -> tuple[Any, dict[str, float]]:
+    """The default's shortest part refitted on subset Eq 9 + window evidence."""
+    from scipy.optimize import minimize
+    from threadpoolctl import threadpool_limits
+
+    from terrain import TerrainGP
+    from terrain.kernels import SumKernel
+    from terrain.likelihood import gaussian_lml
+    from terrain.microscale import without_microscale
+
+    parts = list(without_microscale(gp.kernel_))
+    extra = [p for p in getattr(gp.kernel_, "parts", ()) if p not in parts]
+    short = min(range(len(parts)), key=lambda i: float(parts[i].lengths[0]))
+    idx = gp.fit_index_
+    X, r, zv = gp.X_train_[idx], gp.y_resid_[idx], gp.z_var_[idx]
+    plan, nugget = gp.window_plan_, gp.nugget_
+
+    def kernel(u):
+        ps = list(parts)
+        p = ps[short]
+        ps[short] = replace(
+            p, variance=p.variance * np.exp(u[0]), lengthscale=float(p.lengths[0]) * np.exp(u[1])
+        )
+        ps += extra
+        return SumKernel(tuple(ps)) if len(ps) > 1 else ps[0]
+
+    def objective(u):
+        k = kernel(u)
+        with threadpool_limits(1):
+            return -(gaussian_lml(k, X, r, zv + nugget) + plan.lml(k, nugget))
+
+    simplex = np.array([[0.0, 0.0], [0.7, 0.0], [0.0, 0.5]])
+    opts = {"xatol": 0.02, "fatol": 0.2, "maxfev": 60, "initial_simplex": simplex}
+    res = minimize(objective, np.zeros(2), method="Nelder-Mead", options=opts)
+    info = {
+        "variance_factor": float(np.exp(res.x[0])),
+        "length_factor": float(np.exp(res.x[1])),
+        "evidence_gain_nats": float(objective(np.zeros(2)) - res.fun),
+    }
+    fixed = {"optimize": False, "nugget": nugget, "nugget_bounds": "fixed"}
+    return TerrainGP(kernel=kernel(res.x), seed=0, **fixed).fit(samples), info
+
+
+def case(site: dict, variant: str) -> dict[str, Any]:
+    """One variant on one site: fit seconds, kernel, RMSE and truth coverage."""
+    import terrain.gp as gp_module
+    import terrain.kernel_search as search
+    import terrain.window_evidence as windows
+    from terrain import TerrainGP
+    from terrain.kernels import SumKernel
+    from terrain.microscale import without_microscale
+
+    truth, grid, samples = _data(site, N)
+    out: dict[str, Any] = {"site": site["label"], "variant": variant}
+    saved = (search._Search.optimize, gp_module.select_kernel, windows.BUDGET_SAMPLES)
+    try:
+        if variant == "no-refine":
+            screen = search._Search.optimize
+
+            def optimize(self, kernel, nugget, maxiter=200, ftol=None):
+                return None if self.ftol == 1e-7 else screen(self, kernel, nugget, maxiter, ftol)
+
+            search._Search.optimize = optimize
+        elif variant.startswith("refine-m"):
+            m = int(variant.removeprefix("refine-m"))
+            select = saved[1]
+            gp_module.select_kernel = lambda *a, **k: select(*a, neighbours=(10, m), **k)
+        elif variant.startswith("budget-"):
+            windows.BUDGET_SAMPLES = int(variant.removeprefix("budget-"))
+        elif variant not in ("default", "exact-subset", "window-refit"):
+            raise ValueError(f"variant: unknown {variant!r}")
+        t0 = time.perf_counter()
+        gp = TerrainGP(seed=0).fit(samples)
+        if variant == "exact-subset":
+            parts = without_microscale(gp.kernel_)
+            start = parts[0] if len(parts) == 1 else SumKernel(tuple(parts))
+            gp = TerrainGP(kernel=start, seed=0, n_restarts=0).fit(samples)
+        elif variant == "window-refit":
+            gp, info = _short_part_refit(gp, samples)
+            out.update(info)
+        out["fit_s"] = time.perf_counter() - t0
+    finally:
+        search._Search.optimize, gp_module.select_kernel, windows.BUDGET_SAMPLES = saved
+    out["kernel"] = repr(gp.kernel_)
+    out.update(_scores(gp, truth, grid))
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--variants", nargs="+", default=["default", "no-refine"])
+    ap.add_argument("--sites", nargs="+", type=parse_site, default=None)
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "fit_variants.json")
+    args = ap.parse_args(argv)
+    sites = args.sites or [parse_site(s) for s in ("bei", "glacier", "olinda")]
+    rows = []
+    for site in sites:
+        for variant in args.variants:
+            rows.append(case(site, variant))
+            print(
+                f"{rows[-1]['site']:>10} {variant:>13}: fit {rows[-1]['fit_s']:.1f} s, "
+                f"RMSE {rows[-1]['rmse_m']:.4f} m, truth in 95 / 68 %: "
+                f"{rows[-1]['cov95']:.1f} / {rows[-1]['cov68']:.1f}",
+                flush=True,
+            )
+    print(
+        table(
+            rows,
+            [
+                ("site", "site", ""),
+                ("variant", "variant", ""),
+                ("fit_s", "fit s", ".1f"),
+                ("rmse_m", "RMSE m", ".4f"),
+                ("cov95", "95 %", ".1f"),
+                ("cov68", "68 %", ".1f"),
+            ],
+        )
+    )
+    settings = {"n": N, "variants": args.variants, "sites": sites}
+    write_json(
+        args.out,
+        {
+            "benchmark": "fit_variants",
+            "settings": settings,
+            "provenance": _provenance(),
+            "results": rows,
+        },
+    )
+
+
+if __name__ == "__main__":
+    main()
