@@ -98,8 +98,9 @@ def _short_part_refit(gp, samples) -> tuple[Any, dict[str, float]]:
     return TerrainGP(kernel=kernel(res.x), seed=0, **fixed).fit(samples), info
 
 
-def case(site: dict, variant: str) -> dict[str, Any]:
-    """One variant on one site: fit seconds, kernel, RMSE and truth coverage."""
+def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
+    """One variant on one site's ``(truth, grid, samples)``: fit seconds, kernel, RMSE and
+    truth coverage."""
     import terrain.gp as gp_module
     import terrain.kernel_search as search
     import terrain.window_evidence as windows
@@ -107,7 +108,7 @@ def case(site: dict, variant: str) -> dict[str, Any]:
     from terrain.kernels import SumKernel
     from terrain.microscale import without_microscale
 
-    truth, grid, samples = _data(site, N)
+    truth, grid, samples = data
     out: dict[str, Any] = {"site": site["label"], "variant": variant}
     saved = (search._Search.optimize, gp_module.select_kernel, windows.BUDGET_SAMPLES)
     try:
@@ -152,8 +153,9 @@ def main(argv: list[str] | None = None) -> None:
     sites = args.sites or [parse_site(s) for s in ("bei", "glacier", "olinda")]
     rows = []
     for site in sites:
+        data = _data(site, N)  # the same samples for every variant
         for variant in args.variants:
-            rows.append(case(site, variant))
+            rows.append(case(site, variant, data))
             print(
                 f"{rows[-1]['site']:>10} {variant:>13}: fit {rows[-1]['fit_s']:.1f} s, "
                 f"RMSE {rows[-1]['rmse_m']:.4f} m, truth in 95 / 68 %: "
