@@ -90,6 +90,7 @@ def test_main_passes_on_the_exit_code_a_command_sets(monkeypatch, capsys, code):
 
     monkeypatch.setattr(cli, "app", probe)
     monkeypatch.setattr(sys, "argv", ["glacimap"])
+    monkeypatch.setattr(cli, "leave_now", sys.exit)  # in-process: not os._exit
     with pytest.raises(SystemExit) as exc:
         cli.main()
     assert exc.value.code == code
@@ -105,9 +106,11 @@ def test_main_turns_keyboard_interrupt_into_130(monkeypatch):
 
     monkeypatch.setattr(cli, "app", probe)
     monkeypatch.setattr(sys, "argv", ["glacimap"])
+    left = []
+    monkeypatch.setattr(cli, "leave_now", lambda code: left.append(code) or sys.exit(code))
     with pytest.raises(SystemExit) as exc:
         cli.main()
-    assert exc.value.code == 130
+    assert exc.value.code == 130 and left == [130]  # Ctrl-C skips the interpreter's teardown
 
 
 def test_print_default_redirected_to_a_file_is_the_scenario_byte_for_byte(tmp_path):
@@ -153,3 +156,33 @@ def test_interrupt_while_writing_the_field_files_leaves_none(tmp_path, monkeypat
     with pytest.raises(KeyboardInterrupt):
         pipeline.run_scenario(out=tmp_path / "o", overrides=small)
     assert written == ["gps.nmea"] and _products(tmp_path / "o") == []
+
+
+def test_ctrl_c_does_not_wait_for_a_stuck_worker_thread(tmp_path):
+    """A pool worker left waiting by the interrupt (here: on an event no one will set) kept the
+    interpreter's teardown, hence the process, alive for ever; after Ctrl-C ``main`` leaves at
+    once. Without :func:`toolkit.cli.leave_now` this child never exits (the timeout fails)."""
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import sys, threading, typer\n"
+        "import toolkit.cli as cli\n"
+        "app = typer.Typer()\n"
+        "@app.command()\n"
+        "def stuck() -> None:\n"
+        "    threading.Thread(target=threading.Event().wait).start()  # not a daemon\n"
+        "    raise KeyboardInterrupt\n"
+        "cli.app = app\n"
+        "sys.argv = ['glacimap']\n"
+        "cli.main()\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen(
+        [sys.executable, str(probe)], env=env, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err

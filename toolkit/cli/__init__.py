@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import os
 import sys
 
 import typer
@@ -158,7 +159,23 @@ def main() -> None:
             "(every write is atomic)",
             soft_wrap=True,
         )
+        leave_now(INTERRUPTED)
     sys.exit(rc if isinstance(rc, int) else 0)
+
+
+def leave_now(code: int) -> None:
+    """End the process with ``code`` at once, skipping the interpreter's teardown.
+
+    After Ctrl-C every product has already been rolled back: the ``with`` blocks that write
+    (:func:`terrain.atomic.atomic_path`) and that own a Dask cluster ran on the way here. What
+    is left is the teardown, which joins the worker threads of any pool the interrupt cut
+    short; a worker waiting on a lock the interrupted main thread never released waits for
+    ever, and so did the process (seen once in the test suite under load: no exit within
+    60 s). A user who pressed Ctrl-C wants the prompt back, so nothing is waited for.
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def _click_exceptions() -> tuple[type[Exception], ...]:
