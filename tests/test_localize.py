@@ -258,3 +258,29 @@ def test_true_landmarks_match_by_id_and_leave_unknown_ones_nan():
     np.testing.assert_array_equal(got[0], [3.0, 4.0, 5.0])  # id 1: the second truth row
     np.testing.assert_array_equal(got[2], [9.0, 10.0, 11.0])  # id 4: the last
     assert np.isnan(got[1]).all() and np.isnan(got[3]).all()  # ids 2 and 5: no truth
+
+
+def test_marginals_of_adjacent_swaths_match_gtsam_marginals(dem):
+    """Two legs 15 m apart: landmarks seen from both couple keyframes a leg apart in time. The
+    keyframes are renumbered (reverse Cuthill-McKee) to a narrow band; the marginals still
+    equal gtsam.Marginals' (batch Bayes tree at the same estimate)."""
+    import gtsam
+
+    path = np.array([[W + 20, N - 300], [W + 120, N - 300], [W + 120, N - 285], [W + 20, N - 285]])
+    log = simulate_traverse(dem, path, seed=4)
+    res = localize(log, LocalizeParams(refine=False))
+    lid = np.asarray(res.landmark_id)
+    seen = np.isin(log.obs_id, lid)  # views in the graph span a leg in time ...
+    k, j = log.obs_k[seen], log.obs_id[seen]
+    span = max(k[j == i].max() - k[j == i].min() for i in np.unique(j))
+    assert span > 0.5 * log.n_keyframes
+    assert res.bandwidth < 0.4 * span  # ... the band after renumbering, a few local windows
+    m = gtsam.Marginals(res.graph, res.estimate)
+    L, X = gtsam.symbol_shorthand.L, gtsam.symbol_shorthand.X
+    for j in np.linspace(0, lid.size - 1, 8).astype(int):
+        ref = m.marginalCovariance(L(int(lid[j])))
+        np.testing.assert_allclose(res.landmark_cov[j], ref, rtol=1e-3, atol=1e-4)
+    for k in (0, log.n_keyframes // 2, log.n_keyframes - 1):
+        c = m.marginalCovariance(X(k))[3:, 3:]
+        R = res.keyframe_R[k]
+        np.testing.assert_allclose(res.pose_cov_xyz[k], R @ c @ R.T, rtol=1e-3, atol=1e-4)
