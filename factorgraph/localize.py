@@ -29,6 +29,7 @@ from terrain.errors import bad_input
 from .control import ControlPoints, add_control_factors, control_report, plan_control
 from .factors import biased_gps_factor, drift_odometry_factor, gauss_markov_factor, gm_transition
 from .field.gate import gate_log
+from .isam2 import isam2_params
 from .log import MeasurementLog
 from .rebuild import OnlineGuard, rebuild_isam
 from .result import LocalizationResult
@@ -80,15 +81,9 @@ class LocalizeParams:
     # tree (step times grew to seconds). The online pass then stays linear at the insertion
     # points and the batch refinement (factorgraph.refine) takes the final estimate to the MAP.
     relinearize: bool = False
-    # iSAM2's wildfire threshold (tangent units, rad or m): the back-substitution that reads
-    # the newest pose each step stops descending where a clique's delta moved by less. The
-    # newest pose, bias and drift sit in the cliques the step re-eliminated, which are solved
-    # afresh, so they are exact at any threshold; older poses' deltas lag (a 250-step chain:
-    # 0.19 m at 0.1, 1.3 m with no wildfire; tests/test_isam_wildfire.py), so the final
-    # estimate is a full back-substitution (calculateBestEstimate). GTSAM's 1e-3 let every GPS
-    # fix, which moves the whole trajectory by millimetres through the bias chain, descend the
-    # whole tree: 22 of the default run's 45 s localize; 0.1 takes 3 s, and the default run's
-    # products agree with 1e-3's to 1e-10 m (docs/localization.md).
+    # iSAM2's wildfire threshold (tangent units, rad or m) for the back-substitution that
+    # reads the newest pose each step: 0.1, not GTSAM's 1e-3, which took 22 of the default
+    # run's 45 s localize; the poses read are exact at any threshold (factorgraph/isam2.py)
     wildfire_threshold: float = 0.1
     refine: bool = True  # staged batch refinement after the last keyframe
     # triangulate the tracks that failed the gates online again at the refined poses
@@ -220,29 +215,6 @@ class _Tracks:
         del self.pending[lid]
 
 
-def _isam_params(params: LocalizeParams):
-    """iSAM2 settings: per-variable relinearization thresholds (tangent units)."""
-    import gtsam
-
-    p = gtsam.ISAM2Params()
-    th = gtsam.ISAM2ThresholdMap()
-    th.insert(("x", np.asarray(params.relinearize_pose, float)))
-    th.insert(("b", np.full(3, params.relinearize_bias_m)))
-    th.insert(("l", np.full(3, params.relinearize_landmark_m)))
-    th.insert(("d", np.asarray(params.relinearize_drift, float)))
-    p.setRelinearizeThreshold(th)
-    p.relinearizeSkip = params.relinearize_skip
-    gauss_newton = gtsam.ISAM2GaussNewtonParams()
-    gauss_newton.setWildfireThreshold(float(params.wildfire_threshold))
-    p.setOptimizationParams(gauss_newton)
-    if not params.relinearize:  # only the forced Gauss-Newton passes at the end relinearize
-        th = gtsam.ISAM2ThresholdMap()
-        for ch, n in (("x", 6), ("b", 3), ("l", 3), ("d", 2)):
-            th.insert((ch, np.full(n, 1e9)))
-        p.setRelinearizeThreshold(th)
-    return p
-
-
 def localize(
     log: MeasurementLog,
     params: LocalizeParams | None = None,
@@ -306,7 +278,7 @@ def localize(
     if params.use_tilt and tilt is not None:
         sigma = math.radians(log.sensors.tilt.sigma_deg)
         tilt_noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
-    isam_params = _isam_params(params)
+    isam_params = isam2_params(params)
     isam = gtsam.ISAM2(isam_params)
     history = gtsam.NonlinearFactorGraph()  # every factor added so far (for a rebuild)
     guard = OnlineGuard(bTc, params.min_depth_m)  # views unsafe to linearize online (rebuild.py)

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from factorgraph.localize import LocalizeParams, _isam_params
+from factorgraph.isam2 import isam2_params
+from factorgraph.localize import LocalizeParams
 from terrain.errors import InputError
 
 gtsam = pytest.importorskip("gtsam")
@@ -20,7 +21,7 @@ def _drive(threshold: float, steps: int = 250, seed: int = 0):
     """A 1 m-per-step straight drive with noisy odometry and a GPS fix every step (Pose3,
     metres / radians). Returns (newest pose read after each update, the iSAM2 object)."""
     rng = np.random.default_rng(seed)
-    isam = gtsam.ISAM2(_isam_params(LocalizeParams(wildfire_threshold=threshold)))
+    isam = gtsam.ISAM2(isam2_params(LocalizeParams(wildfire_threshold=threshold)))
     odo_noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, 1e-3), np.full(3, 0.05)])
     gps_noise = gtsam.noiseModel.Isotropic.Sigma(3, 2.0)
     prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, 0.01), np.full(3, 5.0)])
