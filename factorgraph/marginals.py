@@ -177,7 +177,13 @@ def _block_tridiag_solve(G, E, rhs: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def landmark_marginals(
-    graph, values, n_keyframes: int, landmark_ids, bias_model: bool, drift_model: bool = False
+    graph,
+    values,
+    n_keyframes: int,
+    landmark_ids,
+    bias_model: bool,
+    drift_model: bool = False,
+    reorder: bool = True,
 ):
     """Marginal covariances of every landmark (and keyframe position) at ``values``.
 
@@ -195,6 +201,10 @@ def landmark_marginals(
         Whether GPS bias states ``b{k}`` exist.
     drift_model : bool
         Whether odometry drift states ``d{k}`` (Point2) exist.
+    reorder : bool
+        Renumber the keyframes to a narrower band where one exists (:func:`_keyframe_order`);
+        ``False`` keeps the time order (the same covariances, slower where swaths share
+        landmarks; ``benchmarks/marginals_order.py``).
 
     Returns
     -------
@@ -220,7 +230,7 @@ def landmark_marginals(
         ks = [k for _, k, _, _ in cols]
         ea.append(np.array(ks[:-1], int))
         eb.append(np.array(ks[1:], int))
-    pos = _keyframe_order(K, np.concatenate(ea), np.concatenate(eb))
+    pos = _keyframe_order(K, np.concatenate(ea), np.concatenate(eb)) if reorder else np.arange(K)
     pk = pos[pk]
     other = [(Af, [(c, int(pos[k]), o, n) for c, k, o, n in cols]) for Af, cols in other]
     # Landmark information blocks A_l and couplings B_l (per observation).
