@@ -43,6 +43,7 @@ bench: setup
 	$(BIN)/python benchmarks/ground_control.py --out benchmarks/results/ground_control.json
 	$(BIN)/python benchmarks/vision.py --out benchmarks/results/vision.json
 	$(BIN)/python benchmarks/landmark_nees.py --seeds 0-9 --out benchmarks/results/landmark_nees.json
+	$(BIN)/python benchmarks/marginals_order.py --out benchmarks/results/marginals_order.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache
