@@ -267,11 +267,8 @@ def landmark_marginals(
     # Schur complement of the landmarks: S = H - sum_l B_l^T A_l^-1 B_l, pairs within a landmark.
     Ainv = np.linalg.inv(A) if nL else A
     order = np.lexsort((pk, pj))
-    pk, pj, Bo = pk[order], pj[order], Bo[order]
+    pk, pj, Bo = pk[order], pj[order], Bo[order]  # pj's runs unchanged: the same pairs
     T = np.einsum("nij,njk->nik", Ainv[pj], Bo)  # A_l^-1 B_i  (n_obs, 3, 6)
-    starts = np.searchsorted(pj, np.arange(nL))
-    counts = np.bincount(pj, minlength=nL)
-    ii_all, jj_all = _pairs(starts, counts)
     keep = pk[jj_all] >= pk[ii_all]
     ii, jj = ii_all[keep], jj_all[keep]
     blocks = np.einsum("nki,nkj->nij", Bo[ii], T[jj])  # B_i^T A^-1 B_j  (pairs, 6, 6)
