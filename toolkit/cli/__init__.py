@@ -169,9 +169,9 @@ def leave_now(code: int) -> None:
     After Ctrl-C every product has already been rolled back: the ``with`` blocks that write
     (:func:`terrain.atomic.atomic_path`) and that own a Dask cluster ran on the way here. What
     is left is the teardown, which joins the worker threads of any pool the interrupt cut
-    short; a worker waiting on a lock the interrupted main thread never released waits for
-    ever, and so did the process (seen once in the test suite under load: no exit within
-    60 s). A user who pressed Ctrl-C wants the prompt back, so nothing is waited for.
+    short; a worker waiting on a lock the interrupted main thread never released would keep
+    the process alive for ever (``tests/test_cli_signals.py`` builds that case). A user who
+    pressed Ctrl-C wants the prompt back, so nothing is waited for.
     """
     sys.stdout.flush()
     sys.stderr.flush()
