@@ -1,6 +1,7 @@
 """The ``glacimap`` entry point as a shell sees it: Ctrl-C (a real SIGINT to a real process), exit
 codes, and stdout redirected to a file."""
 
+import io
 import os
 import signal
 import subprocess
@@ -10,8 +11,11 @@ from pathlib import Path
 
 import pytest
 import typer
+from rich.console import Console
 
 import toolkit.cli as cli
+import toolkit.cli._interrupt as cli_interrupt
+from toolkit.cli._progress import stage_progress
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -111,6 +115,57 @@ def test_main_turns_keyboard_interrupt_into_130(monkeypatch):
     with pytest.raises(SystemExit) as exc:
         cli.main()
     assert exc.value.code == 130 and left == [130]  # Ctrl-C skips the interpreter's teardown
+
+
+def _swallowed_ctrl_c() -> None:
+    """A real SIGINT to this process, caught where a library's bare ``except:`` would."""
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(5.0)  # the handler raises in here
+    except KeyboardInterrupt:
+        pass
+    else:
+        raise AssertionError("the SIGINT never raised")
+
+
+def test_a_ctrl_c_a_library_swallowed_stops_the_run_at_its_next_progress_step():
+    """What lost the `run` SIGINT test's interrupt about one run in five: pynmea2 converts the
+    NMEA fields inside a bare ``except:``. Whatever swallows it, the next progress callback of
+    the stage bar raises it again."""
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with cli_interrupt.catching_ctrl_c():
+        _swallowed_ctrl_c()
+        assert cli_interrupt.interrupted()
+        with stage_progress(Console(file=io.StringIO()), ("localize",)) as (on_stage, on_step):
+            with pytest.raises(KeyboardInterrupt):
+                on_step(1, 10)
+            with pytest.raises(KeyboardInterrupt):
+                on_stage("localize", "done")
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    with cli_interrupt.catching_ctrl_c():
+        assert not cli_interrupt.interrupted()  # each command starts afresh
+
+
+@pytest.mark.parametrize("ending", ["returns", "import_error"])
+def test_main_reports_any_ending_after_a_ctrl_c_as_interrupted(monkeypatch, capsys, ending):
+    """A pybind11 module (GTSAM) interrupted while it initialises raises ``ImportError:
+    initialization failed``: that printed a traceback and exited 1 instead of 130."""
+    probe = typer.Typer()
+
+    @probe.command()
+    def stop() -> None:
+        _swallowed_ctrl_c()
+        if ending == "import_error":
+            raise ImportError("initialization failed")
+
+    monkeypatch.setattr(cli, "app", probe)
+    monkeypatch.setattr(sys, "argv", ["glacimap"])
+    monkeypatch.setattr(cli, "leave_now", sys.exit)
+    with pytest.raises(SystemExit) as exc:
+        cli.main()
+    assert exc.value.code == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "Traceback" not in err
 
 
 def test_print_default_redirected_to_a_file_is_the_scenario_byte_for_byte(tmp_path):

@@ -198,6 +198,64 @@ def test_nmea_log_started_before_midnight_without_a_date_yet(tmp_path):
     assert not f.skipped
 
 
+def _corrupt(line: str, field: int, text: str) -> str:
+    """``line`` with comma field ``field`` (0 = the address) replaced, checksum recomputed: a
+    receiver's own garbage, which a checksum does not catch."""
+    parts = line[1 : line.index("*")].split(",")
+    parts[field] = text
+    return _cs(",".join(parts))
+
+
+@pytest.mark.parametrize(
+    ("field", "text", "reason"),
+    [(1, "20a000.00", "bad_time"), (2, "58x5.0", "bad_position"), (3, "", "bad_position")],
+    ids=["time", "latitude digits", "no hemisphere letter"],
+)
+def test_nmea_malformed_gga_fields_are_counted_not_fatal(tmp_path, field, text, reason):
+    """A malformed time of day crashed the reader (pynmea2 returns the raw text when its
+    conversion fails: "'str' object has no attribute 'hour'"), malformed latitude digits
+    raised a bare ValueError, and a missing N/S letter put the fix on the equator (pynmea2's
+    ``latitude`` reads it as 0 degrees)."""
+    lines = [_rmc(UTC[0])] + [_gga(UTC[i], i) for i in range(N)]
+    lines[5] = _corrupt(lines[5], field, text)
+    path = tmp_path / "bad.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    f = read_nmea(path)
+    assert f.skipped == {reason: 1}
+    keep = np.arange(N) != 4
+    np.testing.assert_allclose(f.utc_s, UTC[keep])
+    np.testing.assert_allclose(f.lat_deg, LAT[keep], atol=2e-10)
+    np.testing.assert_allclose(f.lon_deg, LON[keep], atol=2e-10)
+
+
+class _Trap(str):
+    """Field text whose reading raises KeyboardInterrupt: a Ctrl-C landing in the conversion."""
+
+    def __getitem__(self, key):
+        raise KeyboardInterrupt
+
+
+def test_nmea_ctrl_c_during_field_conversion_is_not_swallowed(tmp_path, monkeypatch):
+    """pynmea2 converts fields lazily inside a bare ``except:`` that returns the raw text on
+    any error: a Ctrl-C there was lost, and `glacimap run` went on to write its products
+    (tests/test_cli_signals.py failed about one run in five). The reader must let it out."""
+    import pynmea2
+
+    real_parse = pynmea2.parse
+
+    def parse(line, check=False):
+        s = real_parse(line, check=check)
+        if s.sentence_type == "GGA":
+            s.data[0] = _Trap(s.data[0])  # the time of day
+        return s
+
+    monkeypatch.setattr(pynmea2, "parse", parse)
+    path = tmp_path / "gps.nmea"
+    path.write_text("\n".join([_rmc(UTC[0])] + [_gga(UTC[i], i) for i in range(N)]) + "\n")
+    with pytest.raises(KeyboardInterrupt):
+        read_nmea(path)
+
+
 def test_gpx_tracks_in_any_order_and_a_track_without_heights(tmp_path):
     def seg(idx, ele=True):
         pts = []

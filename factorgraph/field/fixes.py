@@ -42,6 +42,9 @@ NO_FIX_HINTS = {
     "no_solution": "the receiver had no position solution: check the antenna and the log",
     "2d_fix_no_height": "log 3-D fixes: a 2-D fix has no height",
     "unparseable_row": "check the file's format against docs/field-format.md",
+    "bad_time": "the GGA times of day are not hhmmss[.ss]: check the receiver's NMEA output",
+    "bad_position": "the GGA positions are not ddmm.mmmm with an N/S and E/W letter: check "
+    "the receiver's NMEA output",
 }
 
 

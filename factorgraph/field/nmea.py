@@ -14,9 +14,13 @@
 
 Counted, not fatal: sentences with a bad or missing checksum (fatal above
 :data:`MAX_BAD_CHECKSUM_FRACTION` of the ``$`` lines: the file is then corrupt, not noisy),
-sentences pynmea2 cannot parse, GGA without a solution (quality 0 or empty position), dead
-reckoning / manual / simulator fixes (quality 6, 7, 8), and the time-order reasons of
-:meth:`.fixes.GPSFixes.collect`.
+sentences pynmea2 cannot parse, GGA without a solution (quality 0 or empty position), GGA
+whose time of day (``bad_time``) or position (``bad_position``: digits or hemisphere letter)
+is malformed under a valid checksum, dead reckoning / manual / simulator fixes (quality 6, 7,
+8), and the time-order reasons of :meth:`.fixes.GPSFixes.collect`.
+
+pynmea2 parses and checks each sentence; its fields are read as text and converted here
+(:func:`_raw`).
 """
 
 from __future__ import annotations
@@ -120,44 +124,49 @@ def read_nmea(
         )
     gst = {}
     for s in sentences:
-        if s.sentence_type == "GST" and s.timestamp is not None:
+        if s.sentence_type == "GST" and (tod := _time_of_day(s)) is not None:
             sig = (
-                _float(s.std_dev_longitude),
-                _float(s.std_dev_latitude),
-                _float(s.std_dev_altitude),
+                _float(_raw(s, "std_dev_longitude")),
+                _float(_raw(s, "std_dev_latitude")),
+                _float(_raw(s, "std_dev_altitude")),
             )
             if all(math.isfinite(v) and v > 0 for v in sig):
-                gst[s.timestamp] = sig
+                gst[tod] = sig
     day = dt.date.fromisoformat(date) if date else None
     rows: list[tuple] = []
-    pending: list = []  # GGA before the first date
+    pending: list = []  # (GGA, time of day) before the first date
     last_t = None
     for s in sentences:
         kind = s.sentence_type
-        if kind in ("RMC", "ZDA") and _date(s) is not None:
-            day = _date(s)
+        if kind in ("RMC", "ZDA") and (s_day := _date(s)) is not None:
+            day = s_day
             if pending:  # GGA before the first date: the same day, or the day before
-                for g in pending:
-                    ref = s.timestamp or g.timestamp
-                    before = _posix(day, g.timestamp) - _posix(day, ref) > 12 * 3600
+                ref = _time_of_day(s)
+                for g, g_tod in pending:
+                    before = _posix(day, g_tod) - _posix(day, ref or g_tod) > 12 * 3600
                     g_day = day - dt.timedelta(days=1) if before else day
-                    rows.append(_gga_row(g, g_day, gst, table, skipped))
-                    last_t = _posix(g_day, g.timestamp)
+                    rows.append(_gga_row(g, g_day, g_tod, gst, table, skipped))
+                    last_t = _posix(g_day, g_tod)
                 pending.clear()
             continue
         if kind != "GGA":
             continue
-        if s.timestamp is None:
+        try:
+            tod = _time_of_day(s)
+        except ValueError:
+            skipped["bad_time"] += 1
+            continue
+        if tod is None:
             skipped["no_time"] += 1
             continue
         if last_t is not None and day is not None:
-            if last_t - _posix(day, s.timestamp) > 12 * 3600:  # midnight, no RMC to say so
+            if last_t - _posix(day, tod) > 12 * 3600:  # midnight, no RMC to say so
                 day = day + dt.timedelta(days=1)
         if day is None:
-            pending.append(s)
+            pending.append((s, tod))
             continue
-        rows.append(_gga_row(s, day, gst, table, skipped))
-        last_t = _posix(day, s.timestamp)
+        rows.append(_gga_row(s, day, tod, gst, table, skipped))
+        last_t = _posix(day, tod)
     if pending:
         raise bad_input(
             f"{path.name} date",
@@ -168,23 +177,79 @@ def read_nmea(
     return GPSFixes.collect([r for r in rows if r is not None], skipped, "nmea", path.name)
 
 
+def _raw(s, name: str) -> str:
+    """Field ``name`` of a parsed sentence as logged (``""`` when the sentence is short).
+
+    The fields are read and converted here, not through pynmea2's attributes: those convert
+    inside a bare ``except:`` that returns the raw text on any error, so a Ctrl-C there was
+    lost (``glacimap run`` finished instead of stopping) and a malformed time reached the
+    caller as text.
+    """
+    index = _FIELD_INDEX.get(type(s))
+    if index is None:
+        index = _FIELD_INDEX[type(s)] = {f[1]: i for i, f in enumerate(s.fields)}
+    i = index[name]
+    return s.data[i] if i < len(s.data) else ""
+
+
+#: Field name -> position, per pynmea2 sentence class.
+_FIELD_INDEX: dict[type, dict[str, int]] = {}
+
+
+def _time_of_day(s) -> dt.time | None:
+    """The sentence's UTC time of day; ``None`` when empty, ``ValueError`` when malformed."""
+    from pynmea2.nmea_utils import timestamp
+
+    text = _raw(s, "timestamp")
+    if not text:
+        return None
+    try:
+        return timestamp(text)
+    except (IndexError, ValueError) as exc:
+        raise ValueError(f"time of day {text!r}") from exc
+
+
 def _date(s) -> dt.date | None:
     """The UTC date of an RMC or ZDA sentence (None when empty or invalid)."""
+    from pynmea2.nmea_utils import datestamp
+
     try:
-        return s.datestamp
-    except (TypeError, ValueError):  # pynmea2 parses the fields lazily
+        if s.sentence_type == "ZDA":
+            return dt.date(int(_raw(s, "year")), int(_raw(s, "month")), int(_raw(s, "day")))
+        return datestamp(_raw(s, "datestamp"))
+    except ValueError:
         return None
 
 
-def _gga_row(s, day, gst, table, skipped) -> tuple | None:
+def _degrees(text: str, hemisphere: str, letters: str) -> float:
+    """``dddmm.mmmm`` and its hemisphere letter (``letters``: positive then negative, "NS" or
+    "EW") to signed decimal degrees; ``ValueError`` when either is malformed (pynmea2's
+    ``latitude`` reads a missing letter as 0 degrees)."""
+    from pynmea2.nmea_utils import dm_to_sd
+
+    if len(hemisphere) != 1 or hemisphere not in letters:
+        raise ValueError(f"hemisphere {hemisphere!r}, not one of {letters}")
+    sd = dm_to_sd(text)
+    return -sd if hemisphere == letters[1] else sd
+
+
+def _gga_row(s, day, tod, gst, table, skipped) -> tuple | None:
     try:
-        q = int(s.gps_qual)
-    except (TypeError, ValueError):
+        q = int(_raw(s, "gps_qual"))
+    except ValueError:
         q = 0
     kind = QUALITY.get(q, "unknown_quality_fix")
-    if kind not in table or not s.lat or not s.lon:
-        skipped["no_solution" if (not s.lat or not s.lon) else kind] += 1
+    lat, lon = _raw(s, "lat"), _raw(s, "lon")
+    if kind not in table or not lat or not lon:
+        skipped["no_solution" if (not lat or not lon) else kind] += 1
         return None
-    h = _float(s.altitude) + (_float(s.geo_sep) if s.geo_sep not in (None, "") else 0.0)
-    sig = gst.get(s.timestamp) or sigma_from_dop(kind, _float(s.horizontal_dil), None, table)
-    return (_posix(day, s.timestamp), s.latitude, s.longitude, h, *sig, kind)
+    try:
+        lat_deg = _degrees(lat, _raw(s, "lat_dir"), "NS")
+        lon_deg = _degrees(lon, _raw(s, "lon_dir"), "EW")
+    except ValueError:
+        skipped["bad_position"] += 1
+        return None
+    sep = _raw(s, "geo_sep")
+    h = _float(_raw(s, "altitude")) + (_float(sep) if sep else 0.0)
+    sig = gst.get(tod) or sigma_from_dop(kind, _float(_raw(s, "horizontal_dil")), None, table)
+    return (_posix(day, tod), lat_deg, lon_deg, h, *sig, kind)

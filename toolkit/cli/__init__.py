@@ -25,6 +25,7 @@ from . import (
     simulate,
     sweep,
 )
+from ._interrupt import catching_ctrl_c, interrupted
 
 app = typer.Typer(
     name="glacimap",
@@ -134,23 +135,10 @@ INTERRUPTED = 130
 def main() -> None:
     """Entry point: library errors become one clear line and exit code 2 (bad input); Ctrl-C
     exits 130 with one line; every other exit code a command sets is passed on."""
-    try:
-        rc = app(standalone_mode=False)
-    except GlacimapError as exc:
-        # escape: messages quote user values, and "[table]" would read as rich markup
-        # soft_wrap: one line however narrow the terminal (or 80 columns in a pipe), so that
-        # scripts and logs read the error as the README promises
-        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
-        sys.exit(2)
-    except (typer.Abort, KeyboardInterrupt):
+    with catching_ctrl_c():
+        rc = _run_app()
+    if interrupted():  # whatever the command did with the Ctrl-C on its way (_interrupt)
         rc = INTERRUPTED
-    except typer.Exit as exc:
-        rc = exc.exit_code
-    except Exception as exc:  # click usage errors carry their own exit code
-        if isinstance(exc, _click_exceptions()):
-            exc.show()
-            sys.exit(exc.exit_code)
-        raise
     # Without standalone mode typer *returns* the exit code of ``typer.Exit`` and turns
     # KeyboardInterrupt into Exit(130) (typer.core._main): it must reach the shell.
     if rc == INTERRUPTED:
@@ -161,6 +149,29 @@ def main() -> None:
         )
         leave_now(INTERRUPTED)
     sys.exit(rc if isinstance(rc, int) else 0)
+
+
+def _run_app() -> int | None:
+    """The command's exit code; a library error exits 2 here with one line."""
+    try:
+        return app(standalone_mode=False)
+    except GlacimapError as exc:
+        # escape: messages quote user values, and "[table]" would read as rich markup
+        # soft_wrap: one line however narrow the terminal (or 80 columns in a pipe), so that
+        # scripts and logs read the error as the README promises
+        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
+        sys.exit(2)
+    except (typer.Abort, KeyboardInterrupt):
+        return INTERRUPTED
+    except typer.Exit as exc:
+        return exc.exit_code
+    except Exception as exc:  # click usage errors carry their own exit code
+        if interrupted():  # e.g. ImportError from a module the Ctrl-C cut short
+            return INTERRUPTED
+        if isinstance(exc, _click_exceptions()):
+            exc.show()
+            sys.exit(exc.exit_code)
+        raise
 
 
 def leave_now(code: int) -> None:

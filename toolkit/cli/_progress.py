@@ -19,6 +19,8 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from ._interrupt import raise_if_interrupted
+
 
 @dataclass
 class _LineTask:
@@ -145,6 +147,7 @@ def stage_progress(
         tasks = {s: bar.add_task(s, total=1, start=False) for s in stages}
 
         def on_stage(name: str, state: str) -> None:
+            raise_if_interrupted()  # a Ctrl-C a library swallowed stops the run here
             if name not in tasks:
                 return
             if state == "start":
@@ -155,6 +158,7 @@ def stage_progress(
                 bar.update(tasks[name], completed=bar.tasks[tasks[name]].total)
 
         def on_progress(k: int, total: int, stage: str = "localize") -> None:
+            raise_if_interrupted()
             bar.update(tasks[stage], total=total, completed=k)
 
         yield on_stage, on_progress
