@@ -135,9 +135,9 @@ INTERRUPTED = 130
 def main() -> None:
     """Entry point: library errors become one clear line and exit code 2 (bad input); Ctrl-C
     exits 130 with one line; every other exit code a command sets is passed on."""
-    with catching_ctrl_c():
+    with catching_ctrl_c() as ctrl_c:
         rc = _run_app()
-    if interrupted():  # whatever the command did with the Ctrl-C on its way (_interrupt)
+    if ctrl_c.came:  # whatever the command did with the Ctrl-C on its way (_interrupt)
         rc = INTERRUPTED
     # Without standalone mode typer *returns* the exit code of ``typer.Exit`` and turns
     # KeyboardInterrupt into Exit(130) (typer.core._main): it must reach the shell.
