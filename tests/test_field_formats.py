@@ -218,6 +218,7 @@ def test_nmea_malformed_gga_fields_are_counted_not_fatal(tmp_path, field, text, 
     ``latitude`` reads it as 0 degrees)."""
     lines = [_rmc(UTC[0])] + [_gga(UTC[i], i) for i in range(N)]
     lines[5] = _corrupt(lines[5], field, text)
+    lines.insert(0, _corrupt(_rmc(UTC[0]), 1, "20x000.00"))  # a dated RMC, malformed time
     path = tmp_path / "bad.nmea"
     path.write_text("\n".join(lines) + "\n")
     f = read_nmea(path)
@@ -469,3 +470,19 @@ def test_manifest_and_file_errors_carry_a_fix(tmp_path):
         read_field_log(folder)
     with pytest.raises(InputError, match=r'Fix: pattern = "lawnmower" or "piecewise"'):
         load_scenario(overrides={"plan": {"pattern": "zigzag"}})
+
+
+def test_nmea_malformed_times_in_rmc_and_gst_are_not_fatal(tmp_path):
+    """An RMC or GST with a malformed time of day under a valid checksum: the RMC still dates
+    the GGA before it, and the GST is not used (its fix keeps the quality x HDOP sigma)."""
+    lines = [_gga(UTC[i], i) for i in range(3)]  # no date yet
+    lines.append(_corrupt(_rmc(UTC[3]), 1, "2o0006.00"))
+    tod = dt.datetime.fromtimestamp(UTC[3], dt.UTC).strftime("%H%M%S.00")
+    lines.append(_cs(f"GPGST,{tod[:2]}x{tod[3:]},0.5,0.1,0.1,0.0,0.01,0.01,0.02"))
+    lines += [_gga(UTC[i], i) for i in range(3, N)]
+    path = tmp_path / "times.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    f = read_nmea(path)
+    np.testing.assert_allclose(f.utc_s, UTC)
+    assert not f.skipped
+    np.testing.assert_allclose(f.sigma[:, 0], f.sigma[0, 0])  # no fix took the GST's 0.01 m

@@ -124,7 +124,8 @@ def read_nmea(
         )
     gst = {}
     for s in sentences:
-        if s.sentence_type == "GST" and (tod := _time_of_day(s)) is not None:
+        # a GST whose time is empty or malformed is not used (its fix falls back to the table)
+        if s.sentence_type == "GST" and (tod := _time_or_none(s)) is not None:
             sig = (
                 _float(_raw(s, "std_dev_longitude")),
                 _float(_raw(s, "std_dev_latitude")),
@@ -141,7 +142,7 @@ def read_nmea(
         if kind in ("RMC", "ZDA") and (s_day := _date(s)) is not None:
             day = s_day
             if pending:  # GGA before the first date: the same day, or the day before
-                ref = _time_of_day(s)
+                ref = _time_or_none(s)  # the dated sentence's own time, if it has one
                 for g, g_tod in pending:
                     before = _posix(day, g_tod) - _posix(day, ref or g_tod) > 12 * 3600
                     g_day = day - dt.timedelta(days=1) if before else day
@@ -207,6 +208,15 @@ def _time_of_day(s) -> dt.time | None:
         return timestamp(text)
     except (IndexError, ValueError) as exc:
         raise ValueError(f"time of day {text!r}") from exc
+
+
+def _time_or_none(s) -> dt.time | None:
+    """The time of day of a sentence that is not a fix (GST, RMC, ZDA); ``None`` when empty
+    or malformed."""
+    try:
+        return _time_of_day(s)
+    except ValueError:
+        return None
 
 
 def _date(s) -> dt.date | None:
