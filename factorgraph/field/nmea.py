@@ -186,15 +186,8 @@ def _raw(s, name: str) -> str:
     lost (``glacimap run`` finished instead of stopping) and a malformed time reached the
     caller as text.
     """
-    index = _FIELD_INDEX.get(type(s))
-    if index is None:
-        index = _FIELD_INDEX[type(s)] = {f[1]: i for i, f in enumerate(s.fields)}
-    i = index[name]
+    i = type(s).name_to_idx[name]  # pynmea2's own field index, built per sentence class
     return s.data[i] if i < len(s.data) else ""
-
-
-#: Field name -> position, per pynmea2 sentence class.
-_FIELD_INDEX: dict[type, dict[str, int]] = {}
 
 
 def _time_of_day(s) -> dt.time | None:
