@@ -33,8 +33,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .compiled import compiled
 from .errors import NumericalError, bad_input
 from .likelihood import gaussian_lml
+from .vecchia_compiled import build_conditionals, fused_parts
 
 __all__ = [
     "VecchiaPlan",
@@ -331,11 +333,22 @@ def _rows(
     a, b = ab
     idx = plan.order[m:][a:b]
     nb = plan.neighbours[a:b]
+    nv = noise_var[np.concatenate([nb, idx[:, None]], axis=1)]
+    parts = fused_parts(kernel)
+    loop = None if parts is None else compiled("vecchia.conditionals", build_conditionals)
+    if loop is not None:
+        total = plan.pair_sq(X, a, b - a)[1]
+        nug = -1.0 if nugget is None or not eval_gradient else float(nugget)
+        status, part = loop(total, *parts, nv, r[nb], r[idx], nug, eval_gradient, iu, ju, grad)
+        if status == 1:
+            raise NumericalError("Vecchia neighbour covariance is singular")
+        if status == 2:
+            raise NumericalError("a Vecchia conditional variance is not positive")
+        return part - 0.5 * idx.size * _LOG_2PI, grad
     Cp, dCs = _pair_tensors(kernel, plan.pair_sq(X, a, b - a), eval_gradient)
     C = np.empty((idx.size, m + 1, m + 1))
     C[:, iu, ju] = Cp
     C[:, ju, iu] = Cp
-    nv = noise_var[np.concatenate([nb, idx[:, None]], axis=1)]
     diag = np.arange(m + 1)
     C[:, diag, diag] += nv
     Cn, c, cii = C[:, :m, :m], C[:, :m, m], C[:, m, m]

@@ -94,3 +94,25 @@ def test_tiled_prediction_with_and_without_the_table(monkeypatch):
     mean0, std0, _ = predict_tiled(xq, X, resid, noise, kernel, spec, workers=2)
     assert np.max(np.abs(mean - mean0)) < 1e-8  # m
     assert np.max(np.abs(std / std0 - 1.0)) < 1e-7
+
+
+@pytest.mark.parametrize("name", sorted(KERNELS))
+def test_compiled_lookup_gives_the_numpy_bits(name):
+    # Reference: RadialTable._numpy_matrix, the lookup pass by pass in NumPy. The compiled
+    # loop does the same operations in the same order, so every entry must be the same bits
+    # (a reordered Horner step or a fused multiply-add would differ in the last digit).
+    table = tabulate(KERNELS[name], 80.0 * np.sqrt(2.0))
+    assert table._fill is not None, "Numba is a dependency: the compiled lookup must build"
+    rng = np.random.default_rng(1)
+    X = rng.uniform(-40, 40, (257, 2))
+    Y = rng.uniform(-40, 40, (3, 130))[:2].T  # a strided view: copied to C order first
+    assert np.array_equal(table(X, Y), table._numpy_matrix(X, Y))
+    assert np.array_equal(table(X), table._numpy_matrix(X))
+    assert table(X[:0], Y).shape == (0, 130)
+
+
+def test_compiled_lookup_past_the_table_falls_back_to_the_kernel():
+    kernel = KERNELS["matern52"]
+    table = RadialTable(kernel, 10.0)
+    X = np.array([[0.0, 0.0], [3.0, 0.0], [50.0, 0.0]])
+    assert np.array_equal(table(X, X[::-1]), kernel(X, X[::-1]))

@@ -313,3 +313,39 @@ def test_nearest_earlier_sets_are_near_the_exact_likelihood_and_blocks_are_not()
     assert max(gaps("blocks")) < -50.0
     with pytest.raises(InputError, match="sets"):
         VecchiaPlan.build(X, 25, np.random.default_rng(0), "nearby")
+
+
+@pytest.mark.parametrize("m", [10, 25])
+@pytest.mark.parametrize("gradient", [True, False])
+def test_compiled_conditionals_equal_their_numpy_twin(data, m, gradient, monkeypatch):
+    """terrain.compiled runs the conditionals as one Numba loop (Cholesky, not LU); its
+    NumPy twin (_pair_tensors + batched solves) is the reference: equal to rounding."""
+    import terrain.compiled as compiled
+    from terrain.microscale import Microscale
+
+    X, r, zv = data
+    kernel = KERNEL + Matern(0.3, 6.0, nu=1.5) + Matern(0.2, 9.0, nu=3.5) + Microscale(0.01, 2.0)
+    plan = VecchiaPlan.build(X, m, np.random.default_rng(4))
+    fast = vecchia_lml(kernel, X, r, zv + 0.02, plan, gradient, 0.02)
+    assert compiled._BUILT.get("vecchia.conditionals") is not None, "Numba is a dependency"
+    monkeypatch.setitem(compiled._BUILT, "vecchia.conditionals", None)
+    twin = vecchia_lml(kernel, X, r, zv + 0.02, plan, gradient, 0.02)
+    if gradient:
+        assert fast[0] == pytest.approx(twin[0], rel=1e-12, abs=0)
+        np.testing.assert_allclose(fast[1], twin[1], rtol=1e-9, atol=1e-9)
+    else:
+        assert fast == pytest.approx(twin, rel=1e-12, abs=0)
+
+
+@pytest.mark.parametrize("compiled_loop", [True, False])
+def test_a_set_that_does_not_factor_raises_numerical_error(compiled_loop, monkeypatch):
+    """Two samples at one place with no noise: a neighbour block that is singular."""
+    import terrain.compiled as compiled
+    from terrain.errors import NumericalError
+
+    if not compiled_loop:
+        monkeypatch.setitem(compiled._BUILT, "vecchia.conditionals", None)
+    X = np.array([[0.0, 0.0], [0.0, 0.0], [5.0, 0.0], [9.0, 1.0], [2.0, 7.0]] * 2)
+    plan = VecchiaPlan.build(X, 3, np.random.default_rng(0))
+    with pytest.raises(NumericalError):
+        vecchia_lml(SquaredExponential(1.0, 50.0), X, np.zeros(10), np.zeros(10), plan)
