@@ -229,6 +229,7 @@ class TerrainGP(HyperparameterMixin):
                 rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
             )
         widest = largest_gap(samples.xy)  # the survey's widest gap, m (tiling, near ties)
+        spacing = median_spacing(X) if samples.n < 200_000 else None
         if self._searches_kernel:
             idx = self.fit_index_
             # The samples the subset leaves out score each candidate in windows (their own
@@ -243,7 +244,7 @@ class TerrainGP(HyperparameterMixin):
                 fit_nugget=self.fit_nugget,
                 nugget=nugget,
                 nugget_bounds=self.nugget_bounds,
-                spacing=median_spacing(X),
+                spacing=median_spacing(X) if spacing is None else spacing,
                 widest_gap=widest,
                 windows=windows,
                 rng=rng,
@@ -258,7 +259,7 @@ class TerrainGP(HyperparameterMixin):
             self.kernel_name_ = "given"
             if self.optimize:
                 kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
-        self.degenerate_ = warn_if_degenerate(kernel, X if samples.n < 200_000 else None)
+        self.degenerate_ = warn_if_degenerate(kernel, None if spacing is None else X, spacing)
         # The nugget beyond the stated noise is ground below the fit subset's spacing: kept
         # in the 1-sigma as a short part (terrain/microscale.py), the white nugget floored.
         fitted = self.optimize and self.fit_nugget

@@ -62,7 +62,7 @@ def sample_spacing(xy: np.ndarray) -> float:
     """Median distance from each sample to its nearest other sample, m (0 for one sample)."""
     if xy.shape[0] < 2:
         return 0.0
-    return float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
+    return float(np.median(cKDTree(xy).query(xy, k=2, workers=-1)[0][:, 1]))
 
 
 def _ranks(ranks: tuple[int, ...], available: int) -> list[int]:

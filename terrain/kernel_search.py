@@ -151,13 +151,14 @@ def median_spacing(X: np.ndarray) -> float:
     return sample_spacing(X)
 
 
-def warn_if_degenerate(kernel: Any, X: np.ndarray | None) -> bool:
+def warn_if_degenerate(kernel: Any, X: np.ndarray | None, spacing: float | None = None) -> bool:
     """Warn (:class:`DegenerateFitWarning`) when the shortest length scale is below 3/4 of
     the median sample spacing of ``X`` (n, 2): such a kernel imitates white noise and the map
-    is flat between samples, reverting to its mean. Returns whether it warned."""
+    is flat between samples, reverting to its mean. ``spacing``: that median when the caller
+    has it, m. Returns whether it warned."""
     if X is None or X.shape[0] < 2:
         return False
-    spacing = median_spacing(X)
+    spacing = median_spacing(X) if spacing is None else float(spacing)
     parts = getattr(kernel, "parts", (kernel,))
     ls = float(min(np.min(p.lengths) for p in parts))
     if ls >= 0.75 * spacing:
