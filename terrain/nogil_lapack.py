@@ -22,9 +22,9 @@ import functools
 import numpy as np
 import scipy.linalg.cython_blas as _cython_blas
 import scipy.linalg.cython_lapack as _cython_lapack
-from scipy.linalg import LinAlgError, cholesky, solve_triangular
+from scipy.linalg import LinAlgError, cho_solve, cholesky, eigh, solve_triangular
 
-__all__ = ["cholesky_lower", "solve_lower"]
+__all__ = ["cho_solve_lower", "cholesky_lower", "solve_lower", "symmetric_eigen"]
 
 _char_p = ctypes.c_char_p
 _int_p = ctypes.POINTER(ctypes.c_int)
@@ -65,6 +65,17 @@ def _dtrsm():
     )  # fmt: skip
 
 
+@functools.cache
+def _dsyevr():
+    # dsyevr(jobz, range, uplo, n, a, lda, vl, vu, il, iu, abstol, m, w, z, ldz, isuppz,
+    #        work, lwork, iwork, liwork, info)
+    return _function(
+        _cython_lapack, "dsyevr", _char_p, _char_p, _char_p, _int_p, _dbl_p, _int_p, _dbl_p,
+        _dbl_p, _int_p, _int_p, _dbl_p, _int_p, _dbl_p, _dbl_p, _int_p, _int_p, _dbl_p, _int_p,
+        _int_p, _int_p, _int_p,
+    )  # fmt: skip
+
+
 def _ptr(a: np.ndarray):
     return a.ctypes.data_as(_dbl_p)
 
@@ -95,12 +106,25 @@ def cholesky_lower(K: np.ndarray) -> np.ndarray | None:
     _dpotrf()(b"L", ctypes.byref(n), _ptr(a), ctypes.byref(n), ctypes.byref(info))
     if info.value != 0:
         return None
-    # Zero the strict upper triangle in place, as SciPy returns it: column by column, each a
-    # contiguous run in Fortran order. (Fancy indexing by np.triu_indices took 3.5 ms at
-    # n = 600, as long as the factor itself: docs/terrain.md "Performance notes".)
-    for j in range(1, a.shape[0]):
-        a[:j, j] = 0.0
+    # Zero the strict upper triangle in place, as SciPy returns it, through a cached mask
+    # (0.29 ms at n = 600, the GIL released; a Python loop over the columns took 0.55 ms
+    # holding it, and fancy indexing by np.triu_indices 3.5 ms: docs/terrain.md).
+    np.copyto(a, 0.0, where=_strict_upper(a.shape[0]))
     return a
+
+
+_UPPER: list[np.ndarray] = [np.zeros((0, 0), dtype=bool, order="F")]
+
+
+def _strict_upper(n: int) -> np.ndarray:
+    """Mask of the strict upper triangle, (n, n): a view of one cached mask, grown as needed
+    (replaced whole, so a thread never sees a half-built one)."""
+    mask = _UPPER[0]
+    if mask.shape[0] < n:
+        size = max(n, 2 * mask.shape[0])
+        mask = np.asfortranarray(np.triu(np.ones((size, size), dtype=bool), 1))
+        _UPPER[0] = mask
+    return mask[:n, :n]
 
 
 def solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -135,3 +159,82 @@ def solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
         _ptr(a), ctypes.byref(ni), _ptr(B), ctypes.byref(ni),
     )  # fmt: skip
     return B
+
+
+def cho_solve_lower(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``K^{-1} b`` from the lower factor ``L`` of ``K``, the GIL released.
+
+    LAPACK's ``dpotrs`` (what ``scipy.linalg.cho_solve((L, True), b)`` calls) is two
+    ``dtrsm``: ``L y = b`` and ``L^T x = y``; called here in the same way, so the same bits
+    (tests/test_nogil_lapack.py).
+
+    Parameters
+    ----------
+    L : ndarray of shape (n, n)
+        Lower-triangular factor, Fortran-ordered (as :func:`cholesky_lower` returns it).
+    b : ndarray of shape (n,) or (n, k)
+        Right-hand sides; not modified.
+    """
+    if _dtrsm() is None or not L.flags.f_contiguous:
+        return cho_solve((L, True), b, check_finite=False)
+    x = np.array(b, dtype=np.float64, order="F", copy=True)
+    B = x.reshape(x.shape[0], -1, order="F")
+    ni, ki = ctypes.c_int(B.shape[0]), ctypes.c_int(B.shape[1])
+    one = ctypes.c_double(1.0)
+    for trans in (b"N", b"T"):
+        _dtrsm()(
+            b"L", b"L", trans, b"N", ctypes.byref(ni), ctypes.byref(ki), ctypes.byref(one),
+            _ptr(L), ctypes.byref(ni), _ptr(B), ctypes.byref(ni),
+        )  # fmt: skip
+    return x
+
+
+def symmetric_eigen(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending) and eigenvectors of a symmetric ``A``, the GIL released.
+
+    LAPACK ``dsyevr`` on the lower triangle with the arguments ``scipy.linalg.eigh(A,
+    check_finite=False)`` passes (its default driver: all eigenpairs, ``abstol = 0``, the
+    optimal workspace from a query), so the same bits (tests/test_nogil_lapack.py). SciPy's
+    own wrapper holds the GIL: a tile's 150 x 150 eigendecomposition (``terrain.tiled.
+    local_amplitude``) stalled the other tiles' threads for ~4 ms each.
+
+    Parameters
+    ----------
+    A : ndarray of shape (n, n)
+        Symmetric matrix (only its lower triangle is read); not modified.
+
+    Returns
+    -------
+    w : ndarray of shape (n,)
+        Eigenvalues, ascending.
+    V : ndarray of shape (n, n)
+        Orthonormal eigenvectors in the columns.
+    """
+    n = A.shape[0]
+    if _dsyevr() is None or n == 0:
+        return eigh(A, check_finite=False)
+    a = np.array(A, dtype=np.float64, order="F", copy=True)
+    w = np.empty(n)
+    z = np.empty((n, n), order="F")
+    isuppz = np.empty(2 * n, dtype=np.intc)
+    ni, il, iu, found, info = (ctypes.c_int(v) for v in (n, 1, n, 0, 0))
+    vl, vu, abstol = ctypes.c_double(0.0), ctypes.c_double(1.0), ctypes.c_double(0.0)
+
+    def call(work, lwork, iwork, liwork):
+        _dsyevr()(
+            b"V", b"A", b"L", ctypes.byref(ni), _ptr(a), ctypes.byref(ni), ctypes.byref(vl),
+            ctypes.byref(vu), ctypes.byref(il), ctypes.byref(iu), ctypes.byref(abstol),
+            ctypes.byref(found), _ptr(w), _ptr(z), ctypes.byref(ni),
+            isuppz.ctypes.data_as(_int_p), _ptr(work), ctypes.byref(lwork),
+            iwork.ctypes.data_as(_int_p), ctypes.byref(liwork), ctypes.byref(info),
+        )  # fmt: skip
+
+    query, iquery = np.empty(1), np.empty(1, dtype=np.intc)
+    call(query, ctypes.c_int(-1), iquery, ctypes.c_int(-1))  # workspace query
+    lwork, liwork = max(int(query[0]), 26 * n), max(int(iquery[0]), 10 * n)
+    call(
+        np.empty(lwork), ctypes.c_int(lwork), np.empty(liwork, dtype=np.intc), ctypes.c_int(liwork)
+    )
+    if info.value != 0:
+        return eigh(A, check_finite=False)  # SciPy's own error for what LAPACK refused
+    return w, z

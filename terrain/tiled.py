@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from scipy.linalg import cho_solve, eigh, solve_triangular
+from scipy.linalg import solve_triangular
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
@@ -37,7 +37,7 @@ from .errors import TilingWarning, bad_input
 from .heldout_design import default_targets
 from .linalg import cholesky_jitter
 from .microscale import without_microscale
-from .nogil_lapack import solve_lower
+from .nogil_lapack import cho_solve_lower, solve_lower, symmetric_eigen
 from .radial_table import tabulate
 
 __all__ = [
@@ -255,7 +255,7 @@ def local_amplitude(
         return 1.0
     floor = 1e-10 * float(np.mean(np.diag(K)))
     d = 1.0 / np.sqrt(np.maximum(noise_var, floor))
-    lam, U = eigh(K * d[:, None] * d[None, :], check_finite=False)
+    lam, U = symmetric_eigen(K * d[:, None] * d[None, :])  # GIL released (nogil_lapack)
     lam = np.maximum(lam, 0.0)
     c2 = (U.T @ (resid * d)) ** 2
 
@@ -416,7 +416,7 @@ def predict_tiled(
         # The factor and the solves below release the GIL (terrain.nogil_lapack), so the
         # tiles' threads run side by side.
         L, jitter = cholesky_jitter(K, what=f"tile ({i}, {j}) kernel matrix")
-        alpha = cho_solve((L, True), resid[d_idx], check_finite=False)  # R&W Alg. 2.1 line 3
+        alpha = cho_solve_lower(L, resid[d_idx])  # R&W Alg. 2.1 line 3
         W = None
         if return_std and basis is not None:
             W = solve_triangular(L, basis[0][d_idx], lower=True, check_finite=False)

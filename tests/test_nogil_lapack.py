@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.linalg import cho_solve, cholesky, solve_triangular
+from scipy.linalg import cho_solve, cholesky, eigh, solve_triangular
 
 from terrain.exact_predict import predict_exact
 from terrain.kernels import Matern, SquaredExponential
-from terrain.nogil_lapack import cholesky_lower, solve_lower
+from terrain.nogil_lapack import cho_solve_lower, cholesky_lower, solve_lower, symmetric_eigen
 
 
 def _spd(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -98,3 +98,28 @@ def test_without_the_cython_exports_the_scipy_wrappers_give_the_same_results(mon
     assert np.allclose(V_slow, V_fast, rtol=0, atol=1e-12 * np.abs(V_fast).max())
     K[0, 0] = -1.0
     assert nl.cholesky_lower(K) is None
+
+
+@pytest.mark.parametrize("n", [1, 2, 9, 150])
+def test_symmetric_eigen_is_scipys_eigh(n):
+    """dsyevr with SciPy's arguments (all pairs, abstol 0, the queried workspace)."""
+    _, K = _spd(n, seed=3)
+    before = K.copy()
+    w, V = symmetric_eigen(K)
+    w_ref, V_ref = eigh(K, check_finite=False)
+    assert np.array_equal(w, w_ref) and np.array_equal(V, V_ref)
+    assert np.array_equal(K, before)  # the input is not touched
+
+
+@pytest.mark.parametrize("shape", [(1,), (40,), (40, 3)])
+def test_cho_solve_lower_is_scipys_cho_solve(shape):
+    """dpotrs is two dtrsm calls; made the same way they give the same bits."""
+    rng = np.random.default_rng(4)
+    _, K = _spd(shape[0], seed=4)
+    L = cholesky_lower(K)
+    b = rng.normal(size=shape)
+    before = b.copy()
+    x = cho_solve_lower(L, b)
+    assert x.shape == b.shape
+    assert np.array_equal(x, cho_solve((L, True), b, check_finite=False))
+    assert np.array_equal(b, before)
