@@ -50,10 +50,10 @@ def _build_fill(numba):
     """The table lookup as one compiled loop (terrain.compiled)."""
 
     @numba.njit(nogil=True, cache=True, boundscheck=False)
-    def fill(X, Y, inv_step, coef, symmetric, out):  # pragma: no cover - compiled
+    def fill(X, Y, inv_step, coef, scale, symmetric, out):  # pragma: no cover - compiled
         # The operations of RadialTable._numpy_matrix, entry by entry and in its order,
         # so the two give the same bits: distance (as cdist: sqrt of dx^2 + dy^2), times
-        # 1/h, floor, fraction, Horner. False where a distance is past the table.
+        # 1/h, floor, fraction, Horner, times scale. False where a distance is past the table.
         size = coef.shape[0]
         for a in range(X.shape[0]):
             xa = X[a, 0]
@@ -66,7 +66,8 @@ def _build_fill(numba):
                 if i >= size:
                     return False
                 t -= i
-                out[a, b] = ((coef[i, 3] * t + coef[i, 2]) * t + coef[i, 1]) * t + coef[i, 0]
+                k = ((coef[i, 3] * t + coef[i, 2]) * t + coef[i, 1]) * t + coef[i, 0]
+                out[a, b] = k * scale
                 if symmetric:
                     out[b, a] = out[a, b]
         return True
@@ -136,24 +137,37 @@ class RadialTable:
         """Largest distance the table interpolates, m."""
         return self._c01.size * self.step
 
-    def __call__(self, X: np.ndarray, Y: np.ndarray | None = None) -> np.ndarray:
-        """Covariance matrix, shape (n, m), m^2. ``X`` (n, 2), ``Y`` (m, 2) in metres."""
+    def __call__(
+        self, X: np.ndarray, Y: np.ndarray | None = None, scale: float | None = None
+    ) -> np.ndarray:
+        """Covariance matrix, shape (n, m), m^2. ``X`` (n, 2), ``Y`` (m, 2) in metres;
+        ``scale``: a factor on every entry (a tile's amplitude), the same bits as
+        multiplying after, without a second pass."""
         if self._fill is None:
-            return self._numpy_matrix(X, Y)
+            return self._numpy_matrix(X, Y, scale)
         X = np.ascontiguousarray(X, dtype=float)
         Z = X if Y is None else np.ascontiguousarray(Y, dtype=float)
         K = np.empty((X.shape[0], Z.shape[0]))
-        if self._fill(X, Z, 1.0 / self.step, self._coef, Y is None, K):
+        s = 1.0 if scale is None else float(scale)  # x * 1.0 is x: the same bits
+        if self._fill(X, Z, 1.0 / self.step, self._coef, s, Y is None, K):
             return K
-        return self.kernel(X, Y)
+        return self._closed_form(X, Y, scale)
 
-    def _numpy_matrix(self, X: np.ndarray, Y: np.ndarray | None = None) -> np.ndarray:
+    def _closed_form(self, X, Y, scale):
+        K = self.kernel(X, Y)
+        if scale is not None:
+            K *= scale
+        return K
+
+    def _numpy_matrix(
+        self, X: np.ndarray, Y: np.ndarray | None = None, scale: float | None = None
+    ) -> np.ndarray:
         """:meth:`__call__` in NumPy alone: the same operations, pass by pass."""
         t = cdist(X, X if Y is None else Y)
         t *= 1.0 / self.step
         i = t.astype(np.intp)  # t >= 0: truncation is the floor
         if i.size and int(i.max()) >= self._c01.size:
-            return self.kernel(X, Y)
+            return self._closed_form(X, Y, scale)
         t -= i  # fraction of a step
         c23 = np.take(self._c23, i)
         K = c23.imag * t  # Horner: ((c3 t + c2) t + c1) t + c0
@@ -164,6 +178,8 @@ class RadialTable:
         K += c01.imag
         K *= t
         K += c01.real
+        if scale is not None:
+            K *= scale
         return K
 
     def diag(self, X: np.ndarray) -> np.ndarray:

@@ -354,7 +354,17 @@ def predict_tiled(
     # Kernel matrices from a distance table (terrain.radial_table): one lookup an entry in
     # place of an exponential a part. Distances within a tile reach the diagonal of its
     # blending region plus a halo on either side.
-    kern = tabulate(kernel, np.sqrt(2.0) * (T + 2 * B) + 2 * H) or kernel
+    table = tabulate(kernel, np.sqrt(2.0) * (T + 2 * B) + 2 * H)
+
+    def matrix(A: np.ndarray, C: np.ndarray | None = None, amp: float | None = None):
+        """The kernel matrix of A and C (A's own without C), times a tile's amplitude."""
+        if table is not None:
+            return table(A, C, amp)
+        M = kernel(A, C)
+        if amp is not None:
+            M *= amp
+        return M
+
     # Every tile that some query touches: the query's own tile and, near an edge, neighbours.
     tiles = sorted({(i + a, j + b) for (i, j) in q_buckets for a in (-1, 0, 1) for b in (-1, 0, 1)})
 
@@ -400,7 +410,6 @@ def predict_tiled(
             return q_idx, w, np.zeros(q_idx.size), var0, 0, False, 0.0, None
         d_idx = np.sort(d_idx)  # a fixed order: results independent of bucket order
         Xd = X[d_idx]
-        K = kern(Xd)
         amp = None
         if amplitude_prior_sd is not None:
             # The tile's own samples: those in its blending region, nearest the centre first.
@@ -408,9 +417,9 @@ def predict_tiled(
             r = np.hypot(*(Xd[inside] - (lo + T / 2)).T)
             sub = inside[np.argsort(r, kind="stable")[:AMPLITUDE_POINTS]]
             amp = local_amplitude(
-                K[np.ix_(sub, sub)], resid[d_idx[sub]], noise_var[d_idx[sub]], amplitude_prior_sd
+                matrix(Xd[sub]), resid[d_idx[sub]], noise_var[d_idx[sub]], amplitude_prior_sd
             )
-            K *= amp
+        K = matrix(Xd, None, amp)
         scale = 1.0 if amp is None else amp
         K[np.diag_indices_from(K)] += noise_var[d_idx]
         # The factor and the solves below release the GIL (terrain.nogil_lapack), so the
@@ -427,9 +436,7 @@ def predict_tiled(
         # 1-sigma the same to ~1e-12 (the order of the sums of squares); any thread count.
         for s in range(0, q_idx.size, QUERY_CHUNK):
             rows = q_idx[s : s + QUERY_CHUNK]
-            Ks = kern(xq[rows], Xd)
-            if amp is not None:
-                Ks *= amp
+            Ks = matrix(xq[rows], Xd, amp)
             mu[s : s + rows.size] = Ks @ alpha  # line 4
             if return_std:
                 V = solve_lower(L, Ks.T)  # line 5: v = L^-1 k*, in Ks's memory
