@@ -58,8 +58,9 @@ def gls_coefficients(
     ``L`` is the lower Cholesky factor of ``K + diag(noise_var)`` when already known.
     """
     if L is None:
-        # A distance table (terrain.radial_table) where one applies: ~1e-11 of the variance
-        # from the closed form, and ~20x faster than its exponentials at n = 2,000.
+        # A distance table (terrain.radial_table) where one applies: within 1e-10 of the
+        # variance of the closed form (tests), 7x faster than its exponentials at n = 2,000
+        # (0.08 against 0.56 s for an SE + SE + micro-scale kernel).
         reach = float(np.hypot(*np.ptp(X, axis=0))) if X.shape[0] else 0.0
         K = (tabulate(kernel, reach) or kernel)(X)
         K[np.diag_indices_from(K)] += noise_var
