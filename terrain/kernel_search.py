@@ -153,9 +153,8 @@ def median_spacing(X: np.ndarray) -> float:
 
 def warn_if_degenerate(kernel: Any, X: np.ndarray | None, spacing: float | None = None) -> bool:
     """Warn (:class:`DegenerateFitWarning`) when the shortest length scale is below 3/4 of
-    the median sample spacing of ``X`` (n, 2): such a kernel imitates white noise and the map
-    is flat between samples, reverting to its mean. ``spacing``: that median when the caller
-    has it, m. Returns whether it warned."""
+    the median sample spacing of ``X`` (n, 2; ``spacing``, m, when known): the kernel then
+    imitates white noise and the map is flat between samples. Returns whether it warned."""
     if X is None or X.shape[0] < 2:
         return False
     spacing = median_spacing(X) if spacing is None else float(spacing)
