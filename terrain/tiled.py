@@ -63,9 +63,10 @@ QUERY_CHUNK = 256
 MAX_HALO = 150.0
 #: Share of a tile's sample budget (``max_points``) its blending region may hold at the
 #: samples' mean density; the rest is for the margin beyond it. At 50,000 samples on
-#: 600 m x 600 m this caps default tiles at 37 m: 64 m tiles held ~870 samples in their
-#: region against a budget of 600, and their grid RMSE was 3-21 % above that of 40 m tiles
-#: on five real DEMs (docs/terrain.md "Tiles sized to their sample budget").
+#: 600 m x 600 m this capped default tiles at 37 m (34 m at the budget of 500): 64 m
+#: tiles held ~870 samples in their region against a budget of 600, and their grid RMSE
+#: was 3-21 % above that of 40 m tiles on five real DEMs (docs/terrain.md "Tiles sized to
+#: their sample budget").
 REGION_SHARE = 0.5
 
 
@@ -85,13 +86,16 @@ class TileSpec:
         that still matter for a cell).
     max_points : int
         Cap on samples per tile; beyond it the samples nearest the tile are kept (in dense
-        data the nearest ones screen the rest).
+        data the nearest ones screen the rest). 500 since session 28: the triangular
+        solves cost max_points^2 per cell; against 600, 50k samples -> 600 x 600 at 1 m
+        predicted in 7.7-8.7 s instead of 10.5-11.9, the real-DEM standings unchanged but
+        one held-out row at 50k (docs/terrain.md "Performance notes").
     """
 
     tile: float = 32.0
     blend: float = 4.0
     halo: float = 45.0
-    max_points: int = 600
+    max_points: int = 500
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.tile) and self.tile > 0):

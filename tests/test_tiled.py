@@ -233,9 +233,10 @@ def test_default_tiles_are_sized_to_their_sample_budget():
 
     density = 50_000 / 600.0**2  # the real-terrain benchmark at 50k, samples per m^2
     spec = TileSpec.for_lengthscale(500.0, density)
-    # hand: (1.25 T)^2 * density = 0.5 * 600  ->  T = sqrt(300 / 0.13889) / 1.25 = 37.18 m
-    assert spec.tile == pytest.approx(np.sqrt(300.0 / density) / 1.25, rel=1e-12)
-    assert spec.tile == pytest.approx(37.18, abs=0.01) and spec.blend == spec.tile / 8
+    # hand: (1.25 T)^2 * density = 0.5 * 500  ->  T = sqrt(250 / 0.13889) / 1.25 = 33.94 m
+    assert spec.max_points == 500
+    assert spec.tile == pytest.approx(np.sqrt(250.0 / density) / 1.25, rel=1e-12)
+    assert spec.tile == pytest.approx(33.94, abs=0.01) and spec.blend == spec.tile / 8
     assert (1.25 * spec.tile) ** 2 * density == pytest.approx(REGION_SHARE * spec.max_points)
     assert spec.halo == 150.0  # the halo still follows the length scale
     # sparse surveys keep the length-scale rule; short length scales are below the budget
