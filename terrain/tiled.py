@@ -88,7 +88,7 @@ class TileSpec:
         Cap on samples per tile; beyond it the samples nearest the tile are kept (in dense
         data the nearest ones screen the rest). 500 since session 28: the triangular
         solves cost max_points^2 per cell; against 600, 50k samples -> 600 x 600 at 1 m
-        predicted in 7.7-8.7 s instead of 10.5-11.9, the real-DEM standings unchanged but
+        predicted in 8.8-8.9 s instead of 10.5-11.9 (map_speed_s28*.json), standings the same but
         one held-out row at 50k (docs/terrain.md "Performance notes").
     """
 
