@@ -37,11 +37,12 @@ from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
-from .errors import DegenerateFitWarning, InputError, NumericalError, bad_input
+from .candidate_cv import cv_folds, cv_scores
+from .errors import DegenerateFitWarning, NumericalError, bad_input
 from .heldout_weights import sample_spacing
 from .kernels import Matern, SquaredExponential
 from .tiled import shortest_lengthscale
-from .vecchia import VecchiaPlan, nearest_neighbour_predict, vecchia_lml
+from .vecchia import VecchiaPlan, vecchia_lml
 from .window_evidence import WindowPlan, score_candidates
 
 __all__ = [
@@ -71,10 +72,14 @@ FAMILY = (
     "matern52+matern52",
     "matern72+matern72",
 )
-#: L-BFGS-B's relative stop while the candidates are screened (the winner is refined to 1e-7):
+#: L-BFGS-B's relative stop while the candidates are screened (the winner: REFINE_FTOL):
 #: with |lml| ~ 500-3000 nats it stops within ~0.01-0.03 nats, far inside BIC_TIE. Measured on
 #: four real DEMs at 50k: the same picks, BICs within 0.3, fit CPU -13 to -19 % (1e-7 before).
 SCREEN_FTOL = 1e-5
+#: The same stop for the winner's refine at m = 25. 1e-6 was measured in session 29 and not
+#: kept: 14-16 evaluations instead of 26-38 at 50k, but the nugget (a flat direction) stops
+#: high, and the 3k 68 % coverage rose on 19 of 22 real-DEM rows (glacier +5 points).
+REFINE_FTOL = 1e-7
 #: Pieces of each likelihood evaluation of the refine, evaluated over threads.
 REFINE_PARTS = 2
 #: Mean-square differentiability of each part (Matérn nu; SE: infinitely smooth).
@@ -279,51 +284,6 @@ class _Search:
         return out
 
 
-def _cv_folds(X, gap, spacing, rng, n_folds: int = 5):
-    """Spatial blocks of about 4 x the map's median gap, dealt to ``n_folds`` folds."""
-    from .validation import spatial_blocks
-
-    if gap is None:
-        lo, hi = X.min(axis=0), X.max(axis=0)
-        probe = np.random.default_rng(0).uniform(lo, hi, (2000, 2))
-        gap = float(np.median(cKDTree(X).query(probe)[0]))
-    block = max(4.0 * gap, 2.0 * spacing, 1e-3)
-    extent = float(np.ptp(X, axis=0).max()) or 1.0
-    while block > 1e-3 * extent:
-        try:
-            fold, blocks = spatial_blocks(X, block, n_folds, rng)
-        except InputError:  # fewer blocks than folds (samples on a line or two): smaller ones
-            block /= 2.0
-            continue
-        if np.unique(blocks).size >= 2 * n_folds:
-            return fold, block
-        block /= 2.0
-    return spatial_blocks(X, block, n_folds, rng)[0], block
-
-
-def _cv_scores(kernel, nugget, X, r, z_var, fold) -> dict[str, float]:
-    """Held-out NLPD (nats per sample) and 95 % coverage of each fold's samples predicted
-    from the other folds by a nearest-neighbour GP (m = 20)."""
-    mu = np.empty(r.size)
-    sd = np.empty(r.size)
-    lat = np.empty(r.size)
-    nv = z_var + nugget
-    for f in np.unique(fold):
-        test, train = fold == f, fold != f
-        m, v = nearest_neighbour_predict(kernel, X[train], r[train], nv[train], X[test])
-        mu[test], sd[test], lat[test] = m, np.sqrt(v + nv[test]), v
-    z = (r - mu) / sd
-    # the map's error variance over its stated variance, the samples' noise removed
-    kappa = float(np.sum((r - mu) ** 2 - nv) / max(float(np.sum(lat)), 1e-300))
-    nlpd = float(np.mean(0.5 * np.log(2.0 * np.pi * sd**2) + 0.5 * z**2))
-    return {
-        "cv_nlpd": nlpd,
-        "cv_coverage_95": float(np.mean(np.abs(z) <= 1.96)),
-        "cv_z_std": float(np.std(z)),
-        "cv_variance_ratio": max(kappa, 1e-6),
-    }
-
-
 def select_kernel(
     X: np.ndarray,
     r: np.ndarray,
@@ -367,7 +327,8 @@ def select_kernel(
         Vecchia conditioning-set sizes m: every candidate is screened with the first (cheap,
         ~6x faster than m = 25), the winner refined with the second.
     criterion : {"cv_nlpd", "bic"}
-        Keep the lowest BIC (default) or the lowest spatial-block cross-validated NLPD.
+        Keep the lowest BIC (default) or the lowest spatial-block cross-validated NLPD
+        (each candidate's CV scores are then computed and recorded; not with the BIC).
     gap : float, optional
         Median distance from the map's cells to their nearest sample, m: sets the CV block
         size (4 x gap, so held-out samples sit as far from data as the map's gaps);
@@ -391,7 +352,8 @@ def select_kernel(
         ``scores`` rows: name, kernel (repr), lml (nats, the Vecchia likelihood of Eq 9
         named in ``likelihood``), n_params, bic, delta_bic (to the best), window_lml
         (nats, or None), score (``bic - 2 window_lml``, or the BIC), delta_score, nugget,
-        evaluations, likelihood, selected.
+        evaluations, likelihood, selected; with ``criterion="cv_nlpd"`` also cv_nlpd,
+        cv_coverage_95, cv_z_std, cv_variance_ratio and cv_block_m.
     """
     n = r.size
     spacing = median_spacing(X) if spacing is None else float(spacing)
@@ -413,18 +375,24 @@ def select_kernel(
     for name in sorted(set(names), key=lambda s: "+" in s):  # singles first
         groups.setdefault(name.split("+")[0], []).append(name)
 
+    # Each fit's window evidence is scored in its chain's thread as soon as it is fitted (no
+    # barrier between the fits and the windows: measured ~0.1-0.4 s of idle core saved).
     def chain(base: str) -> dict[str, Any]:
         single = search.single(base, nug0)
-        return {
-            name: single if "+" not in name else search.pair(base, single, nug0)
-            for name in groups[base]
-        }
+        out = {}
+        for name in groups[base]:
+            fit = single if "+" not in name else search.pair(base, single, nug0)
+            win = None if windows is None or fit is None else windows.lml(*fit[:2])
+            out[name] = (fit, win)
+        return out
 
     fits: dict[str, Any] = {}
+    window_lml: dict[str, float | None] = {}
     workers = max(1, min(len(groups), workers if workers is not None else os.cpu_count() or 1))
     with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
         for out in pool.map(chain, groups):
-            fits.update(out)
+            for name, (fit, win) in out.items():
+                fits[name], window_lml[name] = fit, win
     rows = []
     for name in names:
         fit = fits.get(name)
@@ -446,17 +414,18 @@ def select_kernel(
                 "likelihood": f"Vecchia, doubling blocks, m = {m_screen}",
             }
         )
-    folds, block = _cv_folds(X, gap, spacing, rng)
     scored = [row for row in rows if row["bic"] is not None]
+    if criterion == "cv_nlpd":  # 0.1 thread-s a candidate at 2,000 samples: only when it ranks
 
-    def cv(row: dict[str, Any]) -> dict[str, float]:
-        k, nug, _, _ = fits[row["name"]]
-        return _cv_scores(k, nug, X, r, z_var, folds)
+        def cv(row: dict[str, Any]) -> dict[str, float]:
+            k, nug, _, _ = fits[row["name"]]
+            return cv_scores(k, nug, X, r, z_var, folds)
 
-    with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
-        for row, scores in zip(scored, pool.map(cv, scored), strict=True):
-            row.update(scores, cv_block_m=block)
-    score_candidates(scored, fits, windows, workers)
+        folds, block = cv_folds(X, gap, spacing, rng)
+        with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
+            for row, scores in zip(scored, pool.map(cv, scored), strict=True):
+                row.update(scores, cv_block_m=block)
+    score_candidates(scored, fits, windows, workers, values=window_lml)
     key = "score" if criterion == "bic" else "cv_nlpd"
     ok = [r_ for r_ in rows if r_["bic"] is not None]
     if not ok:
@@ -487,7 +456,7 @@ def select_kernel(
     rows.sort(key=lambda r_: (not r_["selected"], np.inf if r_["bic"] is None else r_[key]))
     k, nug, _, _ = fits[best["name"]]
     # Refine the winner on larger conditioning sets (closer to the exact Eq 9).
-    refine = _Search(*args, m_refine, rng, 1e-7)
+    refine = _Search(*args, m_refine, rng, REFINE_FTOL)
     # One chain now: each likelihood's rows go in REFINE_PARTS pieces over the threads (the
     # pieces, not the thread count, fix the bits; measured: docs/terrain.md).
     refine.parts = REFINE_PARTS

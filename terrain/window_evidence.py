@@ -218,13 +218,16 @@ def score_candidates(
     fits: dict[str, Any],
     windows: WindowPlan | None,
     workers: int | None,
+    values: dict[str, float | None] | None = None,
 ) -> None:
     """Set each candidate row's ``window_lml`` (nats) and ``score`` (``bic - 2 window_lml``).
 
     ``rows`` carry ``name`` and ``bic``; ``fits[name]`` is ``(kernel, nugget, lml, nfev)``
     as fitted on the subset. Without windows, or when no candidate factors them, the score
     is the BIC; a candidate whose windows do not factor scores ``inf``. The candidates run
-    in threads and give the same values for any number.
+    in threads and give the same values for any number. ``values``: each row's
+    ``windows.lml`` already computed (by name; the kernel search scores each fit in its
+    own thread as soon as it is fitted), so none is computed here.
     """
     if windows is None:
         for row in rows:
@@ -235,11 +238,14 @@ def score_candidates(
         kernel, nugget = fits[row["name"]][:2]
         return windows.lml(kernel, nugget)
 
-    w = max(1, workers if workers is not None else os.cpu_count() or 1)
-    with threadpool_limits(1), ThreadPoolExecutor(max_workers=w) as pool:
-        values = list(pool.map(lml, rows))
-    factored = any(np.isfinite(v) for v in values)
-    for row, v in zip(rows, values, strict=True):
+    if values is not None:
+        got = [values[row["name"]] for row in rows]
+    else:
+        w = max(1, workers if workers is not None else os.cpu_count() or 1)
+        with threadpool_limits(1), ThreadPoolExecutor(max_workers=w) as pool:
+            got = list(pool.map(lml, rows))
+    factored = any(np.isfinite(v) for v in got)
+    for row, v in zip(rows, got, strict=True):
         if not factored:
             row.update(window_lml=None, score=row["bic"])
         else:

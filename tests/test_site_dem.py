@@ -234,11 +234,11 @@ def test_kernel_search_folds_samples_on_two_lines():
     # found on a real-DEM site (benchmarks/vision_dem.py, olinda_site_240): 113 landmarks of
     # a 2-swath survey crashed TerrainGP's kernel search, whose first CV blocks (4 x the
     # median gap, 100 m) held the two swaths in fewer blocks than folds; blocks now shrink
-    from terrain.kernel_search import _cv_folds
+    from terrain.candidate_cv import cv_folds
 
     y = np.random.default_rng(0).uniform(0.0, 199.0, 60)
     xy = np.column_stack([np.r_[np.zeros(30), np.full(30, 99.0)], y])
-    fold, block = _cv_folds(xy, None, 2.0, np.random.default_rng(0))
+    fold, block = cv_folds(xy, None, 2.0, np.random.default_rng(0))
     assert block < 100.0 and np.bincount(fold).size == 5 and np.bincount(fold).min() >= 6
 
 

@@ -245,25 +245,61 @@ def test_se_sum_inside_gaps_only_for_two_se_scales():
 
 def test_kernel_search_threads_give_the_same_scores_bit_for_bit():
     """The candidate families are fitted side by side in threads (session 11: the 50k fit
-    7.1 -> 4.4 s in a fresh process on glacier); one thread or three, the scores, the
-    choice and the refined kernel are the same numbers."""
+    7.1 -> 4.4 s in a fresh process on glacier), each fit's window evidence scored in its
+    own thread (session 29); one thread or three, the scores, the choice and the refined
+    kernel are the same numbers."""
+    from terrain import kernel_search
+    from terrain.window_evidence import WindowPlan
+
+    samples = _matern_draw(1400)
+    X = samples.xy - samples.xy.mean(0)
+    r = samples.z - samples.z.mean()
+    sub = np.arange(0, 1400, 3)  # ~470 fit samples, the rest in windows
+    windows = WindowPlan.build(X, r, samples.z_var, sub, np.random.default_rng(1))
+    assert windows is not None
+    kw = dict(fit_nugget=True, nugget=1e-4, nugget_bounds=(1e-6, 1.0), spacing=None)
+    runs = [
+        kernel_search.select_kernel(
+            X[sub],
+            r[sub],
+            samples.z_var[sub],
+            FAMILY,
+            **kw,
+            windows=windows,
+            rng=np.random.default_rng(0),
+            workers=w,
+        )
+        for w in (1, 3)
+    ]
+    for row in runs[1].scores:
+        assert row["window_lml"] is not None and np.isfinite(row["window_lml"])
+        assert row["score"] == row["bic"] - 2.0 * row["window_lml"]
+        assert "cv_nlpd" not in row  # the BIC criterion computes no CV
+    assert runs[0].name == runs[1].name
+    assert repr(runs[0].kernel) == repr(runs[1].kernel)
+    np.testing.assert_array_equal(runs[0].kernel.theta, runs[1].kernel.theta)
+    assert runs[0].nugget == runs[1].nugget
+    assert runs[0].scores == runs[1].scores  # every lml, BIC, window score, evaluation count
+
+
+def test_cv_criterion_scores_every_candidate_and_keeps_the_lowest_nlpd():
+    """criterion="cv_nlpd" records each candidate's spatial-block CV scores and keeps the
+    lowest held-out NLPD (the near-tie rules belong to the BIC)."""
     from terrain import kernel_search
 
     samples = _matern_draw(500)
     X = samples.xy - samples.xy.mean(0)
     r = samples.z - samples.z.mean()
     kw = dict(fit_nugget=True, nugget=1e-4, nugget_bounds=(1e-6, 1.0), spacing=None)
-    runs = [
-        kernel_search.select_kernel(
-            X, r, samples.z_var, FAMILY, **kw, rng=np.random.default_rng(0), workers=w
-        )
-        for w in (1, 3)
-    ]
-    assert runs[0].name == runs[1].name
-    assert repr(runs[0].kernel) == repr(runs[1].kernel)
-    np.testing.assert_array_equal(runs[0].kernel.theta, runs[1].kernel.theta)
-    assert runs[0].nugget == runs[1].nugget
-    assert runs[0].scores == runs[1].scores  # every lml, BIC, CV score and evaluation count
+    names = ("se", "matern32", "matern52")
+    choice = kernel_search.select_kernel(
+        X, r, samples.z_var, names, **kw, criterion="cv_nlpd", rng=np.random.default_rng(0)
+    )
+    nlpd = {row["name"]: row["cv_nlpd"] for row in choice.scores}
+    assert set(nlpd) == set(names) and all(np.isfinite(v) for v in nlpd.values())
+    assert choice.name == min(nlpd, key=nlpd.get)
+    for row in choice.scores:
+        assert 0.0 <= row["cv_coverage_95"] <= 1.0 and row["cv_block_m"] > 0.0
 
 
 @pytest.mark.parametrize(("n", "m"), [(600, 10), (600, 25), (40, 25), (26, 25)])
