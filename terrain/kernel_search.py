@@ -80,6 +80,11 @@ SCREEN_FTOL = 1e-5
 #: kept: 14-16 evaluations instead of 26-38 at 50k, but the nugget (a flat direction) stops
 #: high, and the 3k 68 % coverage rose on 19 of 22 real-DEM rows (glacier +5 points).
 REFINE_FTOL = 1e-7
+#: Conditioning sets of the winner's refine: the nearest earlier samples. With the search's
+#: doubling blocks the refined nugget, hence the Microscale part and the 68 % band, moved
+#: with the plan's random order (glacier 3k: 68 % coverage 72.1-76.7 over six orders); with
+#: the nearest sets 75.1-76.1 (docs/terrain.md "The refine's order").
+REFINE_SETS = "nearest"
 #: Pieces of each likelihood evaluation of the refine, evaluated over threads.
 REFINE_PARTS = 2
 #: Mean-square differentiability of each part (Matérn nu; SE: infinitely smooth).
@@ -181,12 +186,14 @@ def warn_if_degenerate(kernel: Any, X: np.ndarray | None, spacing: float | None 
 class _Search:
     """One search over the family on one fit subset (shared plan and bounds)."""
 
-    def __init__(self, X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing, m, rng, ftol):
+    def __init__(
+        self, X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing, m, rng, ftol, sets="blocks"
+    ):
         self.X, self.r, self.z_var = X, r, z_var
         self.ftol = ftol  # L-BFGS-B's relative reduction stop
         self.fit_nugget, self.nugget = fit_nugget, float(nugget)
         self.nugget_bounds = nugget_bounds
-        self.plan = VecchiaPlan.build(X, m, rng)
+        self.plan = VecchiaPlan.build(X, m, rng, sets)
         self.pool, self.parts = None, 1  # the refine's single chain: REFINE_PARTS in threads
         extent = float(np.ptp(X, axis=0).max()) or 1.0
         var = float(np.var(r)) or 1.0
@@ -375,8 +382,8 @@ def select_kernel(
     for name in sorted(set(names), key=lambda s: "+" in s):  # singles first
         groups.setdefault(name.split("+")[0], []).append(name)
 
-    # Each fit's window evidence is scored in its chain's thread as soon as it is fitted (no
-    # barrier between the fits and the windows: measured ~0.1-0.4 s of idle core saved).
+    # Each fit's window evidence is scored in its chain's thread as soon as it is fitted: no
+    # barrier between the fits and the windows (at 50k it left a core idle 0.2-0.4 s).
     def chain(base: str) -> dict[str, Any]:
         single = search.single(base, nug0)
         out = {}
@@ -415,13 +422,15 @@ def select_kernel(
             }
         )
     scored = [row for row in rows if row["bic"] is not None]
+    # The folds are dealt from the main stream even when the BIC ranks: the refine's plan is
+    # drawn next, and its order moves the refined nugget (docs/terrain.md "Session 29").
+    folds, block = cv_folds(X, gap, spacing, rng)
     if criterion == "cv_nlpd":  # 0.1 thread-s a candidate at 2,000 samples: only when it ranks
 
         def cv(row: dict[str, Any]) -> dict[str, float]:
             k, nug, _, _ = fits[row["name"]]
             return cv_scores(k, nug, X, r, z_var, folds)
 
-        folds, block = cv_folds(X, gap, spacing, rng)
         with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
             for row, scores in zip(scored, pool.map(cv, scored), strict=True):
                 row.update(scores, cv_block_m=block)
@@ -456,7 +465,7 @@ def select_kernel(
     rows.sort(key=lambda r_: (not r_["selected"], np.inf if r_["bic"] is None else r_[key]))
     k, nug, _, _ = fits[best["name"]]
     # Refine the winner on larger conditioning sets (closer to the exact Eq 9).
-    refine = _Search(*args, m_refine, rng, REFINE_FTOL)
+    refine = _Search(*args, m_refine, rng, REFINE_FTOL, REFINE_SETS)
     # One chain now: each likelihood's rows go in REFINE_PARTS pieces over the threads (the
     # pieces, not the thread count, fix the bits; measured: docs/terrain.md).
     refine.parts = REFINE_PARTS
