@@ -18,6 +18,13 @@ the kernel, RMSE against the truth and the truth's share inside the 95 % and 68 
 ``window-refit``  the default's shortest part (variance, length) refitted on the exact subset
                   Eq 9 plus the window evidence (the chain rule's two terms; Nelder-Mead
                   from the default's values), the rest held.
+``order-S``       the winner's refine with its Vecchia order drawn from seed S instead of the
+                  fit's stream: how much the 1-sigma moves with that order alone
+                  (docs/terrain.md "The refine's order", session 29).
+``nearest-refine`` the winner refined on the nearest earlier samples (``sets="nearest"``)
+                  instead of the search's doubling blocks.
+
+``--n 3000`` maps the 3,000-sample sites instead of 50,000.
 
 Variants run in one process one after another (they patch module constants), so the fit
 times are comparable within a run only.
@@ -98,6 +105,22 @@ def _short_part_refit(gp, samples) -> tuple[Any, dict[str, float]]:
     return TerrainGP(kernel=kernel(res.x), seed=0, **fixed).fit(samples), info
 
 
+def _refine_plan(variant: str, real: Any) -> Any:
+    """``VecchiaPlan`` as the kernel search sees it, with the refine's plan (m = 25, the
+    second of ``select_kernel``'s ``neighbours``) drawn another way."""
+    seed = int(variant.removeprefix("order-")) if variant.startswith("order-") else None
+    sets = "nearest" if variant == "nearest-refine" else "blocks"
+
+    class Plan:
+        @staticmethod
+        def build(X, m, rng):
+            if m != 25:  # the screen's plan: as it is
+                return real.build(X, m, rng)
+            return real.build(X, m, rng if seed is None else np.random.default_rng(seed), sets)
+
+    return Plan
+
+
 def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
     """One variant on one site's ``(truth, grid, samples)``: fit seconds, kernel, RMSE and
     truth coverage."""
@@ -110,13 +133,19 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
 
     truth, grid, samples = data
     out: dict[str, Any] = {"site": site["label"], "variant": variant}
-    saved = (search._Search.optimize, gp_module.select_kernel, windows.BUDGET_SAMPLES)
+    saved = (
+        search._Search.optimize,
+        gp_module.select_kernel,
+        windows.BUDGET_SAMPLES,
+        search.VecchiaPlan,
+    )
     try:
         if variant == "no-refine":
             screen = search._Search.optimize
 
             def optimize(self, kernel, nugget, maxiter=200, ftol=None):
-                return None if self.ftol == 1e-7 else screen(self, kernel, nugget, maxiter, ftol)
+                refine = self.ftol == search.REFINE_FTOL
+                return None if refine else screen(self, kernel, nugget, maxiter, ftol)
 
             search._Search.optimize = optimize
         elif variant.startswith("refine-m"):
@@ -125,6 +154,8 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
             gp_module.select_kernel = lambda *a, **k: select(*a, neighbours=(10, m), **k)
         elif variant.startswith("budget-"):
             windows.BUDGET_SAMPLES = int(variant.removeprefix("budget-"))
+        elif variant.startswith("order-") or variant == "nearest-refine":
+            search.VecchiaPlan = _refine_plan(variant, saved[3])
         elif variant not in ("default", "exact-subset", "window-refit"):
             raise ValueError(f"variant: unknown {variant!r}")
         t0 = time.perf_counter()
@@ -138,7 +169,12 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
             out.update(info)
         out["fit_s"] = time.perf_counter() - t0
     finally:
-        search._Search.optimize, gp_module.select_kernel, windows.BUDGET_SAMPLES = saved
+        (
+            search._Search.optimize,
+            gp_module.select_kernel,
+            windows.BUDGET_SAMPLES,
+            search.VecchiaPlan,
+        ) = saved
     out["kernel"] = repr(gp.kernel_)
     out.update(_scores(gp, truth, grid))
     return out
@@ -149,11 +185,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--variants", nargs="+", default=["default", "no-refine"])
     ap.add_argument("--sites", nargs="+", type=parse_site, default=None)
     ap.add_argument("--out", type=Path, default=HERE / "results" / "fit_variants.json")
+    ap.add_argument("--n", type=int, default=N, help="samples per site (default 50,000)")
     args = ap.parse_args(argv)
     sites = args.sites or [parse_site(s) for s in ("bei", "glacier", "olinda")]
     rows = []
     for site in sites:
-        data = _data(site, N)  # the same samples for every variant
+        data = _data(site, args.n)  # the same samples for every variant
         for variant in args.variants:
             rows.append(case(site, variant, data))
             print(
@@ -175,7 +212,7 @@ def main(argv: list[str] | None = None) -> None:
             ],
         )
     )
-    settings = {"n": N, "variants": args.variants, "sites": sites}
+    settings = {"n": args.n, "variants": args.variants, "sites": sites}
     write_json(
         args.out,
         {

@@ -76,15 +76,11 @@ FAMILY = (
 #: with |lml| ~ 500-3000 nats it stops within ~0.01-0.03 nats, far inside BIC_TIE. Measured on
 #: four real DEMs at 50k: the same picks, BICs within 0.3, fit CPU -13 to -19 % (1e-7 before).
 SCREEN_FTOL = 1e-5
-#: The same stop for the winner's refine at m = 25. 1e-6 was measured in session 29 and not
-#: kept: 14-16 evaluations instead of 26-38 at 50k, but the nugget (a flat direction) stops
-#: high, and the 3k 68 % coverage rose on 19 of 22 real-DEM rows (glacier +5 points).
+#: The same stop for the winner's refine at m = 25. 1e-6 was measured in session 29 (14-16
+#: evaluations instead of 26-38 at 50k, the likelihood within 0.07-0.5 nats) and not taken:
+#: its effect on the maps could not be told apart from the refine order's own
+#: (docs/terrain.md "The refine's order").
 REFINE_FTOL = 1e-7
-#: Conditioning sets of the winner's refine: the nearest earlier samples. With the search's
-#: doubling blocks the refined nugget, hence the Microscale part and the 68 % band, moved
-#: with the plan's random order (glacier 3k: 68 % coverage 72.1-76.7 over six orders); with
-#: the nearest sets 75.1-76.1 (docs/terrain.md "The refine's order").
-REFINE_SETS = "nearest"
 #: Pieces of each likelihood evaluation of the refine, evaluated over threads.
 REFINE_PARTS = 2
 #: Mean-square differentiability of each part (Matérn nu; SE: infinitely smooth).
@@ -186,14 +182,12 @@ def warn_if_degenerate(kernel: Any, X: np.ndarray | None, spacing: float | None 
 class _Search:
     """One search over the family on one fit subset (shared plan and bounds)."""
 
-    def __init__(
-        self, X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing, m, rng, ftol, sets="blocks"
-    ):
+    def __init__(self, X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing, m, rng, ftol):
         self.X, self.r, self.z_var = X, r, z_var
         self.ftol = ftol  # L-BFGS-B's relative reduction stop
         self.fit_nugget, self.nugget = fit_nugget, float(nugget)
         self.nugget_bounds = nugget_bounds
-        self.plan = VecchiaPlan.build(X, m, rng, sets)
+        self.plan = VecchiaPlan.build(X, m, rng)
         self.pool, self.parts = None, 1  # the refine's single chain: REFINE_PARTS in threads
         extent = float(np.ptp(X, axis=0).max()) or 1.0
         var = float(np.var(r)) or 1.0
@@ -423,7 +417,8 @@ def select_kernel(
         )
     scored = [row for row in rows if row["bic"] is not None]
     # The folds are dealt from the main stream even when the BIC ranks: the refine's plan is
-    # drawn next, and its order moves the refined nugget (docs/terrain.md "Session 29").
+    # drawn next, and its order moves the refined nugget, hence the 1-sigma (docs/terrain.md
+    # "The refine's order"): a criterion, or a speed-up, does not redraw it.
     folds, block = cv_folds(X, gap, spacing, rng)
     if criterion == "cv_nlpd":  # 0.1 thread-s a candidate at 2,000 samples: only when it ranks
 
@@ -465,7 +460,7 @@ def select_kernel(
     rows.sort(key=lambda r_: (not r_["selected"], np.inf if r_["bic"] is None else r_[key]))
     k, nug, _, _ = fits[best["name"]]
     # Refine the winner on larger conditioning sets (closer to the exact Eq 9).
-    refine = _Search(*args, m_refine, rng, REFINE_FTOL, REFINE_SETS)
+    refine = _Search(*args, m_refine, rng, REFINE_FTOL)
     # One chain now: each likelihood's rows go in REFINE_PARTS pieces over the threads (the
     # pieces, not the thread count, fix the bits; measured: docs/terrain.md).
     refine.parts = REFINE_PARTS
