@@ -156,14 +156,15 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
 
     truth, grid, samples = data
     out: dict[str, Any] = {"site": site["label"], "variant": variant}
-    saved = (
-        search._Search.optimize,
-        gp_module.select_kernel,
-        windows.BUDGET_SAMPLES,
-        search.VecchiaPlan,
-        search._Search.lml,
-        search.REFINE_FTOL,
-    )
+    patched = [  # what a variant may replace, restored after it
+        (search._Search, "optimize"),
+        (gp_module, "select_kernel"),
+        (windows, "BUDGET_SAMPLES"),
+        (search, "VecchiaPlan"),
+        (search._Search, "lml"),
+        (search, "REFINE_FTOL"),
+    ]
+    saved = [getattr(owner, name) for owner, name in patched]
     try:
         if variant == "no-refine":
             screen = search._Search.optimize
@@ -198,14 +199,8 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
             out.update(info)
         out["fit_s"] = time.perf_counter() - t0
     finally:
-        (
-            search._Search.optimize,
-            gp_module.select_kernel,
-            windows.BUDGET_SAMPLES,
-            search.VecchiaPlan,
-            search._Search.lml,
-            search.REFINE_FTOL,
-        ) = saved
+        for (owner, name), value in zip(patched, saved, strict=True):
+            setattr(owner, name, value)
     out["kernel"] = repr(gp.kernel_)
     out.update(_scores(gp, truth, grid))
     return out
