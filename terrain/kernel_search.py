@@ -356,6 +356,8 @@ def select_kernel(
         evaluations, likelihood, selected; with ``criterion="cv_nlpd"`` also cv_nlpd,
         cv_coverage_95, cv_z_std, cv_variance_ratio and cv_block_m.
     """
+    if criterion not in ("bic", "cv_nlpd"):
+        raise bad_input("criterion", criterion, '"bic" or "cv_nlpd"', 'criterion="bic"')
     n = r.size
     spacing = median_spacing(X) if spacing is None else float(spacing)
     m_screen, m_refine = neighbours

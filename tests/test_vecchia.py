@@ -300,6 +300,10 @@ def test_cv_criterion_scores_every_candidate_and_keeps_the_lowest_nlpd():
     assert choice.name == min(nlpd, key=nlpd.get)
     for row in choice.scores:
         assert 0.0 <= row["cv_coverage_95"] <= 1.0 and row["cv_block_m"] > 0.0
+    with pytest.raises(InputError, match="criterion"):  # named, before any fit
+        kernel_search.select_kernel(
+            X, r, samples.z_var, names, **kw, criterion="nlpd", rng=np.random.default_rng(0)
+        )
 
 
 @pytest.mark.parametrize(("n", "m"), [(600, 10), (600, 25), (40, 25), (26, 25)])
