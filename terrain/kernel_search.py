@@ -471,5 +471,7 @@ def select_kernel(
         fine = refine.optimize(k, nug)
     if fine is not None:
         k, nug, lml, nfev = fine
-        best.update(refined_lml=lml, refined_kernel=repr(k), refined_evaluations=nfev)
+        best.update(
+            refined_lml=lml, refined_kernel=repr(k), refined_nugget=nug, refined_evaluations=nfev
+        )
     return KernelChoice(k, nug, best["name"], rows, n, refine.plan.m)
