@@ -27,6 +27,11 @@ the kernel, RMSE against the truth and the truth's share inside the 95 % and 68 
                   from seeds S and S + 100, with L-BFGS-B stopping at 1e-6 (about the
                   default's cost): does averaging narrow the order's spread?
 
+``no-floor``      the Microscale part (and white nugget) without the detection floor taken
+                  off the fitted nugget: the rule before session 30.
+
+Variants combine with ``+`` (``order-1+no-floor``: that order, the old rule).
+
 ``--n 3000`` maps the 3,000-sample sites instead of 50,000.
 
 Variants run in one process one after another (they patch module constants), so the fit
@@ -149,6 +154,7 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
     truth coverage."""
     import terrain.gp as gp_module
     import terrain.kernel_search as search
+    import terrain.microscale as microscale
     import terrain.window_evidence as windows
     from terrain import TerrainGP
     from terrain.kernels import SumKernel
@@ -163,31 +169,13 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
         (search, "VecchiaPlan"),
         (search._Search, "lml"),
         (search, "REFINE_FTOL"),
+        (microscale, "detection_floor"),
+        (gp_module, "detection_floor"),
     ]
     saved = [getattr(owner, name) for owner, name in patched]
     try:
-        if variant == "no-refine":
-            screen = search._Search.optimize
-
-            def optimize(self, kernel, nugget, maxiter=200, ftol=None):
-                refine = self.ftol == search.REFINE_FTOL
-                return None if refine else screen(self, kernel, nugget, maxiter, ftol)
-
-            search._Search.optimize = optimize
-        elif variant.startswith("refine-m"):
-            m = int(variant.removeprefix("refine-m"))
-            select = saved[1]
-            gp_module.select_kernel = lambda *a, **k: select(*a, neighbours=(10, m), **k)
-        elif variant.startswith("budget-"):
-            windows.BUDGET_SAMPLES = int(variant.removeprefix("budget-"))
-        elif variant.startswith("order-") or variant == "nearest-refine":
-            search.VecchiaPlan = _refine_plan(variant, saved[3])
-        elif variant.startswith("avg2-"):
-            seed = int(variant.removeprefix("avg2-"))
-            search._Search.lml = _averaged_lml(saved[4], saved[3], (seed, seed + 100))
-            search.REFINE_FTOL = 1e-6
-        elif variant not in ("default", "exact-subset", "window-refit"):
-            raise ValueError(f"variant: unknown {variant!r}")
+        for part in variant.split("+"):
+            _patch(part, search, gp_module, windows, microscale, saved)
         t0 = time.perf_counter()
         gp = TerrainGP(seed=0).fit(samples)
         if variant == "exact-subset":
@@ -204,6 +192,34 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
     out["kernel"] = repr(gp.kernel_)
     out.update(_scores(gp, truth, grid))
     return out
+
+
+def _patch(variant: str, search: Any, gp_module: Any, windows: Any, microscale: Any, saved: list):
+    """Apply one variant's patch (``saved``: the patched names' values, in ``case``'s order)."""
+    if variant == "no-refine":
+        screen = search._Search.optimize
+
+        def optimize(self, kernel, nugget, maxiter=200, ftol=None):
+            refine = self.ftol == search.REFINE_FTOL
+            return None if refine else screen(self, kernel, nugget, maxiter, ftol)
+
+        search._Search.optimize = optimize
+    elif variant.startswith("refine-m"):
+        m = int(variant.removeprefix("refine-m"))
+        select = saved[1]
+        gp_module.select_kernel = lambda *a, **k: select(*a, neighbours=(10, m), **k)
+    elif variant.startswith("budget-"):
+        windows.BUDGET_SAMPLES = int(variant.removeprefix("budget-"))
+    elif variant.startswith("order-") or variant == "nearest-refine":
+        search.VecchiaPlan = _refine_plan(variant, saved[3])
+    elif variant.startswith("avg2-"):
+        seed = int(variant.removeprefix("avg2-"))
+        search._Search.lml = _averaged_lml(saved[4], saved[3], (seed, seed + 100))
+        search.REFINE_FTOL = 1e-6
+    elif variant == "no-floor":
+        microscale.detection_floor = gp_module.detection_floor = lambda z_var, n_fit: 0.0
+    elif variant not in ("default", "exact-subset", "window-refit"):
+        raise ValueError(f"variant: unknown {variant!r}")
 
 
 def main(argv: list[str] | None = None) -> None:
