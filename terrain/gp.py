@@ -31,7 +31,7 @@ from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
 from .kernels import Kernel
 from .linalg import cholesky_jitter, single_blas_thread
-from .microscale import detection_floor, microscale_part
+from .microscale import microscale_part
 from .prior import as_mean_function
 from .product import json_rows, mean_coefficients, software_version, terrain_dataset
 from .samples import ElevationSamples
@@ -118,14 +118,12 @@ class TerrainGP(HyperparameterMixin):
         Kernel with the fitted hyperparameters.
     nugget_ : float
         Fitted (or fixed) nugget, m^2; the lower bound of ``nugget_bounds`` when the fitted
-        one became ``microscale_``; with stated noise, a fitted one less the fit subset's
-        :func:`terrain.microscale.detection_floor` (at least that bound).
+        one became ``microscale_``.
     window_plan_ : terrain.window_evidence.WindowPlan or None
         The left-out samples' windows that scored the candidates; ``None`` without any.
     microscale_ : terrain.microscale.Microscale or None
         A nugget fitted on top of stated noise, kept in the 1-sigma as ground below the fit
-        subset's spacing (a part of ``kernel_``; its variance is the nugget less the
-        subset's detection floor); ``None`` without one.
+        subset's spacing (a part of ``kernel_``); ``None`` without one.
     mean_ : callable
         The fitted prior mean function.
     L_ : ndarray of shape (n, n)
@@ -263,15 +261,11 @@ class TerrainGP(HyperparameterMixin):
                 kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
         self.degenerate_ = warn_if_degenerate(kernel, None if spacing is None else X, spacing)
         # The nugget beyond the stated noise is ground below the fit subset's spacing: kept
-        # in the 1-sigma as a short part (terrain/microscale.py), the white nugget floored;
-        # either way, less what the subset cannot tell from none (its detection floor).
+        # in the 1-sigma as a short part (terrain/microscale.py), the white nugget floored.
         fitted = self.optimize and self.fit_nugget
         self.microscale_ = microscale_part(kernel, nugget, self.z_var_, X[self.fit_index_], fitted)
         if self.microscale_ is not None:
             kernel, nugget = kernel + self.microscale_, float(self.nugget_bounds[0])
-        elif fitted:
-            floor = detection_floor(self.z_var_, self.fit_index_.size)
-            nugget = max(nugget - floor, float(self.nugget_bounds[0]))
         self.kernel_, self.nugget_ = kernel, nugget
         tiles = self.tiles or default_tiles(kernel, X, widest)
         self.tiles_ = tiles

@@ -13,13 +13,6 @@ the gaps carry the rest.
 
 With ``z_var = 0`` the nugget *is* the noise, and a nugget held fixed (``nugget_bounds=
 "fixed"``) is the user's: both stay white.
-
-The part's variance is the fitted nugget less what the fit subset's likelihood cannot tell
-from none (:func:`detection_floor`): a positive-part estimate. A nugget of a few per cent of
-the stated noise sits on a flat ridge of the subset's Vecchia likelihood, where the random
-order of its plan places it (~0, 6e-4 or 2.8e-3 m^2 on one real DEM with three orders), and
-the part turned that draw into up to 14 points of the 68 % band's coverage (docs/terrain.md
-"The refine's order" and "The nugget's detection floor", sessions 29-30).
 """
 
 from __future__ import annotations
@@ -32,21 +25,11 @@ import numpy as np
 from .heldout_weights import sample_spacing
 from .kernels import Matern, _fmt
 
-__all__ = [
-    "DETECTION_Z",
-    "MICROSCALE_MIN_SHARE",
-    "Microscale",
-    "detection_floor",
-    "microscale_part",
-    "without_microscale",
-]
+__all__ = ["MICROSCALE_MIN_SHARE", "Microscale", "microscale_part", "without_microscale"]
 
 #: The fitted nugget becomes ground only above this share of the mean stated noise variance
 #: (below it the part would change nothing).
 MICROSCALE_MIN_SHARE = 1e-3
-#: One-sided 5 % normal quantile: a nugget below DETECTION_Z standard errors cannot be told
-#: from none (the boundary test of Self & Liang 1987, by its score form).
-DETECTION_Z = 1.645
 
 
 @dataclass(frozen=True, repr=False)
@@ -69,23 +52,6 @@ def without_microscale(kernel: Any) -> tuple:
     return tuple(p for p in parts if not isinstance(p, Microscale)) or parts
 
 
-def detection_floor(z_var: np.ndarray, n_fit: int) -> float:
-    """The nugget, m^2, that ``n_fit`` samples with stated noise ``z_var`` (m^2) cannot tell
-    from none: ``DETECTION_Z * sqrt(2 / n_fit) * mean(z_var)``.
-
-    ``sqrt(2 / n) * s`` is the standard error of a variance ``s`` estimated from ``n``
-    independent residuals (its Fisher information ``n / (2 s^2)``); a kernel correlates them,
-    so this is a lower bound. Measured on the 2,000-sample fit subset of real DEMs by the
-    exact Eq 9's score at no nugget: 1.4e-3 m^2 a standard error against this bound's
-    1.26e-3 (stated 0.04 m^2; docs/terrain.md "The nugget's detection floor"). ``0.0`` when
-    nothing is stated (the nugget is then the noise itself).
-    """
-    stated = float(np.mean(z_var)) if np.size(z_var) else 0.0
-    if stated <= 0.0 or n_fit < 1:
-        return 0.0
-    return DETECTION_Z * float(np.sqrt(2.0 / n_fit)) * stated
-
-
 def microscale_part(
     kernel: Any, nugget: float, z_var: np.ndarray, X_fit: np.ndarray, fitted: bool
 ) -> Microscale | None:
@@ -96,8 +62,7 @@ def microscale_part(
     kernel : Kernel or SumKernel
         The fitted kernel (a kernel that already has the part gets no second one).
     nugget : float
-        The fitted nugget beyond the stated noise, m^2: the part's variance is what exceeds
-        :func:`detection_floor` of the fit subset.
+        The fitted nugget beyond the stated noise, m^2.
     z_var : ndarray of shape (n,)
         The samples' stated noise variance, m^2.
     X_fit : ndarray of shape (m, 2)
@@ -110,8 +75,7 @@ def microscale_part(
     if not fitted or stated <= 0.0 or any(isinstance(p, Microscale) for p in parts):
         return None
     floor = max(MICROSCALE_MIN_SHARE * stated, Matern.variance_bounds[0])
-    variance = float(nugget) - detection_floor(z_var, len(X_fit))
-    if variance <= floor or len(X_fit) < 3:
+    if nugget <= floor or len(X_fit) < 3:
         return None
     length = max(sample_spacing(X_fit), Matern.lengthscale_bounds[0])
-    return Microscale(variance=variance, lengthscale=length)
+    return Microscale(variance=float(nugget), lengthscale=length)
