@@ -31,7 +31,7 @@ from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
 from .kernels import Kernel
 from .linalg import cholesky_jitter, single_blas_thread
-from .microscale import microscale_part
+from .microscale import microscale_part, windowed_part
 from .prior import as_mean_function
 from .product import json_rows, mean_coefficients, software_version, terrain_dataset
 from .samples import ElevationSamples
@@ -123,7 +123,9 @@ class TerrainGP(HyperparameterMixin):
         The left-out samples' windows that scored the candidates; ``None`` without any.
     microscale_ : terrain.microscale.Microscale or None
         A nugget fitted on top of stated noise, kept in the 1-sigma as ground below the fit
-        subset's spacing (a part of ``kernel_``); ``None`` without one.
+        subset's spacing (a part of ``kernel_``; its length, or none, by the left-out
+        samples' window evidence: :func:`terrain.microscale.windowed_part`); ``None``
+        without one.
     mean_ : callable
         The fitted prior mean function.
     L_ : ndarray of shape (n, n)
@@ -263,9 +265,12 @@ class TerrainGP(HyperparameterMixin):
         # The nugget beyond the stated noise is ground below the fit subset's spacing: kept
         # in the 1-sigma as a short part (terrain/microscale.py), the white nugget floored.
         fitted = self.optimize and self.fit_nugget
-        self.microscale_ = microscale_part(kernel, nugget, self.z_var_, X[self.fit_index_], fitted)
-        if self.microscale_ is not None:
-            kernel, nugget = kernel + self.microscale_, float(self.nugget_bounds[0])
+        part = microscale_part(kernel, nugget, self.z_var_, X[self.fit_index_], fitted)
+        if part is not None:  # its length, or none, by the left-out samples' evidence
+            nugget = float(self.nugget_bounds[0])
+            part = windowed_part(kernel, part, nugget, self.window_plan_, self.kernel_scores_)
+            kernel = kernel if part is None else kernel + part
+        self.microscale_ = part
         self.kernel_, self.nugget_ = kernel, nugget
         tiles = self.tiles or default_tiles(kernel, X, widest)
         self.tiles_ = tiles

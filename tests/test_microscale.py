@@ -105,3 +105,37 @@ def test_faceted_real_dem_with_a_coarse_prior_at_50k_covers():
     ds = gp.predict_grid(grid)
     e = evaluate(ds.elevation.values.ravel(), truth.values.ravel(), ds.elevation_std.values.ravel())
     assert 0.92 <= e["coverage_95"] <= 0.98 and 0.62 <= e["coverage_68"] <= 0.76
+
+
+class _Windows:
+    """A window plan whose evidence is given per part length (None: no part)."""
+
+    def __init__(self, by_length: dict):
+        self.X, self.by_length = [np.zeros((30, 2))], by_length
+
+    def lml(self, kernel, nugget):
+        parts = [p for p in getattr(kernel, "parts", (kernel,)) if isinstance(p, Microscale)]
+        return self.by_length[parts[0].lengthscale if parts else None]
+
+
+def test_window_evidence_sets_the_part_length_and_a_near_tie_keeps_it():
+    from terrain.microscale import PART_TIE_NATS, windowed_part
+
+    k = Matern(4.0, 30.0, nu=2.5)
+    part = Microscale(0.003, 4.0)
+    assert windowed_part(k, part, 1e-6, None) is part  # no windows: as it is
+    empty = _Windows({})
+    empty.X = []
+    assert windowed_part(k, part, 1e-6, empty) is part
+    rows = [{"selected": True}]
+    # x4 ahead by 5 nats (> PART_TIE_NATS = 2): the longer part
+    got = windowed_part(k, part, 1e-6, _Windows({4.0: -100.0, 16.0: -95.0, None: -99.0}), rows)
+    assert got.lengthscale == 16.0 and got.variance == 0.003
+    assert rows[0]["microscale_window_lml"] == {"x1": -100.0, "x4": -95.0, "none": -99.0} | {
+        "kept": "x4"
+    }
+    # none ahead by 1.5 nats: a near tie keeps the part at the subset's spacing
+    assert PART_TIE_NATS == 2.0
+    assert windowed_part(k, part, 1e-6, _Windows({4.0: -100.0, 16.0: -101.0, None: -98.5})) is part
+    # none ahead by 30 nats (bei at 50k with a refine order's 2.8e-3 m^2: docs/terrain.md)
+    assert windowed_part(k, part, 1e-6, _Windows({4.0: -130.0, 16.0: -102.7, None: -100.0})) is None
