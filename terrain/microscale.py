@@ -13,6 +13,11 @@ the gaps carry the rest.
 
 With ``z_var = 0`` the nugget *is* the noise, and a nugget held fixed (``nugget_bounds=
 "fixed"``) is the user's: both stay white.
+
+The fitted nugget is placed by the random order of the refine's Vecchia plan where the
+subset's likelihood cannot tell it from none, so where the samples left out of the subset
+sit in windows (:mod:`terrain.window_evidence`), their exact evidence decides the part's
+length or drops it (:func:`windowed_part`).
 """
 
 from __future__ import annotations
