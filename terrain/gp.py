@@ -118,7 +118,7 @@ class TerrainGP(HyperparameterMixin):
         Kernel with the fitted hyperparameters.
     nugget_ : float
         Fitted (or fixed) nugget, m^2; the lower bound of ``nugget_bounds`` when the fitted
-        one became ``microscale_``.
+        one became ``microscale_`` or the window evidence dropped it.
     window_plan_ : terrain.window_evidence.WindowPlan or None
         The left-out samples' windows that scored the candidates; ``None`` without any.
     microscale_ : terrain.microscale.Microscale or None
