@@ -118,14 +118,14 @@ class TerrainGP(HyperparameterMixin):
         Kernel with the fitted hyperparameters.
     nugget_ : float
         Fitted (or fixed) nugget, m^2; the lower bound of ``nugget_bounds`` when the fitted
-        one became ``microscale_`` or the window evidence dropped it.
+        one became ``microscale_`` (or the window evidence gave it no weight).
     window_plan_ : terrain.window_evidence.WindowPlan or None
         The left-out samples' windows that scored the candidates; ``None`` without any.
-    microscale_ : terrain.microscale.Microscale or None
+    microscale_ : terrain.microscale.Microscale, SumKernel of them, or None
         A nugget fitted on top of stated noise, kept in the 1-sigma as ground below the fit
-        subset's spacing (a part of ``kernel_``; its length, or none, by the left-out
-        samples' window evidence: :func:`terrain.microscale.windowed_part`); ``None``
-        without one.
+        subset's spacing (parts of ``kernel_``; averaged over its lengths and none by the
+        left-out samples' window evidence: :func:`terrain.microscale.windowed_part`);
+        ``None`` without one.
     mean_ : callable
         The fitted prior mean function.
     L_ : ndarray of shape (n, n)
@@ -266,7 +266,7 @@ class TerrainGP(HyperparameterMixin):
         # in the 1-sigma as a short part (terrain/microscale.py), the white nugget floored.
         fitted = self.optimize and self.fit_nugget
         part = microscale_part(kernel, nugget, self.z_var_, X[self.fit_index_], fitted)
-        if part is not None:  # its length, or none, by the left-out samples' evidence
+        if part is not None:  # averaged over lengths by the left-out samples' evidence
             nugget = float(self.nugget_bounds[0])
             part = windowed_part(kernel, part, nugget, self.window_plan_, self.kernel_scores_)
             kernel = kernel if part is None else kernel + part

@@ -118,8 +118,9 @@ class _Windows:
         return self.by_length[parts[0].lengthscale if parts else None]
 
 
-def test_window_evidence_sets_the_part_length_and_a_near_tie_keeps_it():
-    from terrain.microscale import PART_TIE_NATS, windowed_part
+def test_window_evidence_weights_average_the_part_over_its_lengths():
+    from terrain.kernels import SumKernel
+    from terrain.microscale import PART_MIN_WEIGHT, windowed_part
 
     k = Matern(4.0, 30.0, nu=2.5)
     part = Microscale(0.003, 4.0)
@@ -128,14 +129,24 @@ def test_window_evidence_sets_the_part_length_and_a_near_tie_keeps_it():
     empty.X = []
     assert windowed_part(k, part, 1e-6, empty) is part
     rows = [{"selected": True}]
-    # x4 ahead by 5 nats (> PART_TIE_NATS = 2): the longer part
+    # x4 ahead by 5 nats, none by 1: weights exp(l) / sum exp(l), by hand
+    # (e^-5, 1, e^-4) / 1.025054 = (0.006573, 0.975558, 0.017868)
     got = windowed_part(k, part, 1e-6, _Windows({4.0: -100.0, 16.0: -95.0, None: -99.0}), rows)
-    assert got.lengthscale == 16.0 and got.variance == 0.003
-    assert rows[0]["microscale_window_lml"] == {"x1": -100.0, "x4": -95.0, "none": -99.0} | {
-        "kept": "x4"
-    }
-    # none ahead by 1.5 nats: a near tie keeps the part at the subset's spacing
-    assert PART_TIE_NATS == 2.0
-    assert windowed_part(k, part, 1e-6, _Windows({4.0: -100.0, 16.0: -101.0, None: -98.5})) is part
-    # none ahead by 30 nats (bei at 50k with a refine order's 2.8e-3 m^2: docs/terrain.md)
-    assert windowed_part(k, part, 1e-6, _Windows({4.0: -130.0, 16.0: -102.7, None: -100.0})) is None
+    assert isinstance(got, SumKernel) and [p.lengthscale for p in got.parts] == [4.0, 16.0]
+    assert all(isinstance(p, Microscale) for p in got.parts)
+    var = [p.variance / 0.003 for p in got.parts]
+    assert var == pytest.approx([0.006573, 0.975558], abs=1e-6)
+    assert rows[0]["microscale_window_lml"] == {"x1": -100.0, "x4": -95.0, "none": -99.0}
+    w = rows[0]["microscale_weights"]
+    assert w["none"] == pytest.approx(0.017868, abs=1e-6)
+    assert sum(w.values()) == pytest.approx(1.0)
+    # the windows cannot tell the options apart: a third of the variance at each length
+    got = windowed_part(k, part, 1e-6, _Windows({4.0: -100.0, 16.0: -100.0, None: -100.0}))
+    assert [p.variance for p in got.parts] == pytest.approx([0.001, 0.001])
+    # none ahead by 30 nats (bei at 50k with a refine order's 2.8e-3 m^2: docs/terrain.md):
+    # the parts' weights (e^-30, e^-2.7 / ...) fall under PART_MIN_WEIGHT for x1 only
+    got = windowed_part(k, part, 1e-6, _Windows({4.0: -130.0, 16.0: -102.7, None: -100.0}))
+    assert isinstance(got, Microscale) and got.lengthscale == 16.0
+    assert got.variance == pytest.approx(0.003 * np.exp(-2.7) / (1 + np.exp(-2.7)))
+    assert np.exp(-30.0) < PART_MIN_WEIGHT
+    assert windowed_part(k, part, 1e-6, _Windows({4.0: -130.0, 16.0: -120.0, None: -100.0})) is None
