@@ -125,6 +125,21 @@ def test_rebuilt_gp_reproduces_the_map(epochs):
     np.testing.assert_array_equal(k.theta, rec.gp.kernel_.theta)
 
 
+def test_kernel_with_microscale_parts_comes_back_from_the_provenance():
+    # Real-terrain maps carry the nugget as Microscale parts (50k: one per length the window
+    # evidence weights); they were read as a count mismatch and the GP route fell back.
+    from terrain.kernels import Matern, SquaredExponential
+    from terrain.microscale import Microscale
+
+    k = SquaredExponential(6.8, 13.6) + Matern(1.0, 40.0, nu=2.5)
+    k = k + Microscale(2.7e-4, 4.03) + Microscale(5.5e-4, 16.1)
+    hyper = dict(zip(k.param_names, np.exp(k.theta).tolist(), strict=True)) | {"nugget": 1e-6}
+    got = kernel_from_provenance(repr(k), json.dumps(hyper))
+    assert repr(got) == repr(k)
+    assert [type(p) for p in got.parts] == [type(p) for p in k.parts]
+    np.testing.assert_allclose(got.theta, k.theta, rtol=0, atol=1e-12)
+
+
 def test_cli_gp_route_matches_the_library(epochs, tmp_path):
     d, outline, gpkg, rec_b, rec_a, true_v = epochs
     out = tmp_path / "out"

@@ -31,7 +31,9 @@ REPRODUCE_TOL_M = 1e-3
 #: Cells (seeded) at which the rebuilt GP's mean is compared with the product.
 N_CHECK_CELLS = 400
 
-_PART = re.compile(r"(SquaredExponential|Matern)\(([^)]*)\)")
+#: One kernel term of a product's ``kernel`` repr (a :class:`terrain.microscale.Microscale`
+#: part is a Matérn 3/2 that the tiles are sized without: read back as one).
+_PART = re.compile(r"(SquaredExponential|Matern|Microscale)\(([^)]*)\)")
 
 
 @dataclass(frozen=True)
@@ -98,11 +100,14 @@ def kernel_from_provenance(kernel_repr: str, hyperparameters: str | dict) -> Any
         A family glacimap does not have, or hyperparameters that do not match the families.
     """
     from terrain.kernels import Matern, SquaredExponential, SumKernel
+    from terrain.microscale import Microscale
 
     hyper = json.loads(hyperparameters) if isinstance(hyperparameters, str) else hyperparameters
     parts = _PART.findall(str(kernel_repr))
     if not parts:
-        raise bad_input("product kernel", kernel_repr, "SquaredExponential / Matern terms", "")
+        raise bad_input(
+            "product kernel", kernel_repr, "SquaredExponential / Matern / Microscale terms", ""
+        )
     built = []
     for i, (family, args) in enumerate(parts, start=1):
         prefix = f"k{i}." if len(parts) > 1 else ""
@@ -119,7 +124,9 @@ def kernel_from_provenance(kernel_repr: str, hyperparameters: str | dict) -> Any
             raise bad_input(
                 "product hyperparameters", hyper, f"the values of {kernel_repr}", str(exc)
             ) from exc
-        if family == "Matern":
+        if family == "Microscale":
+            built.append(Microscale(var, ls))
+        elif family == "Matern":
             nu = re.search(r"nu=([0-9.]+)", args)
             built.append(Matern(var, ls, nu=float(nu.group(1)) if nu else 1.5))
         else:
