@@ -298,9 +298,10 @@ class TerrainGP(HyperparameterMixin):
         if not exact:
             if not held:
                 warn_long_scale(long_part, tiles.halo)
-            # Tiled: no global factor. GLS coefficients of a linear mean on a subset.
+            # Tiled: no global factor. GLS coefficients of a linear mean on every k-th sample:
+            # the samples' alone, so a rebuild at these hyperparameters gives the same mean.
             if n_coef(self.mean_):
-                sub = self.fit_index_[:: max(1, self.fit_index_.size // GLS_MAX_SAMPLES)]
+                sub = np.arange(samples.n)[:: max(1, samples.n // GLS_MAX_SAMPLES)]
                 self._set_coefficients(samples, idx=sub)
             self.jitter_ = 0.0
             self.fit_seconds_ = time.perf_counter() - t0
