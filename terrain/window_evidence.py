@@ -56,8 +56,8 @@ from .radial_table import tabulate
 
 __all__ = [
     "BUDGET_SAMPLES",
-    "MAX_WINDOW_SAMPLES",
     "MAX_NEAR_SAMPLES",
+    "MAX_WINDOW_SAMPLES",
     "MIN_WINDOW_SAMPLES",
     "NEAR_SIDES",
     "WINDOW_SPACINGS",
@@ -65,8 +65,8 @@ __all__ = [
     "score_candidates",
 ]
 
-#: Window side in mean spacings of the fit subset, sqrt(area / n_fit): the plane of a
-#: window this wide leaves the lags below a few subset spacings, which the subset cannot see.
+#: Window side in mean spacings of the fit subset, sqrt(area / n_fit): a window this wide
+#: holds many lags below the subset's spacing, which the subset cannot see.
 WINDOW_SPACINGS = 5.0
 #: Fewest left-out samples a window needs to be scored.
 MIN_WINDOW_SAMPLES = 30
