@@ -32,9 +32,10 @@ conditioned on the subset near them").
 
 Windows: side :data:`WINDOW_SPACINGS` x the subset's mean spacing, at least
 :data:`MIN_WINDOW_SAMPLES` samples each, at most :data:`MAX_WINDOW_SAMPLES` (a seeded
-random subset beyond it), taken in a seeded random order up to :data:`BUDGET_SAMPLES`
-samples in all. Each is conditioned on the subset's samples within :data:`NEAR_SIDES`
-window sides of its centre (the nearest :data:`MAX_NEAR_SAMPLES` of them). Below
+random subset beyond it), up to :data:`BUDGET_SAMPLES` samples in all: every window when
+they fit, else a sample spread evenly over the site (:func:`window_order`). Each is
+conditioned on the subset's samples within :data:`NEAR_SIDES` window sides of its centre
+(the nearest :data:`MAX_NEAR_SAMPLES` of them). Below
 :data:`MIN_WINDOW_SAMPLES` left-out samples per window (a survey the subset holds almost
 whole) there are no windows and the score is the BIC alone.
 """
@@ -63,6 +64,7 @@ __all__ = [
     "WINDOW_SPACINGS",
     "WindowPlan",
     "score_candidates",
+    "window_order",
 ]
 
 #: Window side in mean spacings of the fit subset, sqrt(area / n_fit): a window this wide
@@ -163,7 +165,8 @@ class WindowPlan:
         side = WINDOW_SPACINGS * np.sqrt(area / n_fit)
         idx = np.flatnonzero(rest)
         cell = np.floor((X[idx] - lo) / side).astype(np.int64)
-        key = cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]
+        rows = int(cell[:, 1].max()) + 1
+        key = cell[:, 0] * rows + cell[:, 1]
         order = np.argsort(key, kind="stable")
         keys, starts = np.unique(key[order], return_index=True)
         groups = np.split(idx[order], starts[1:])
@@ -173,7 +176,8 @@ class WindowPlan:
         tree = cKDTree(X[fit])
         wx, wr, wv, nx, nr, nv = [], [], [], [], [], []
         used = capped = over = 0
-        for k in rng.permutation(keys.size):
+        scored = np.where(sizes >= MIN_WINDOW_SAMPLES, np.minimum(sizes, MAX_WINDOW_SAMPLES), 0)
+        for k in window_order(keys // rows, keys % rows, scored, rng):
             g = groups[k]
             if g.size < MIN_WINDOW_SAMPLES:
                 continue
@@ -246,6 +250,48 @@ class WindowPlan:
             logdet = 2.0 * float(np.log(np.diag(L)[m:]).sum())
             total += -0.5 * (float(u[m:] @ u[m:]) + logdet + r.size * np.log(2.0 * np.pi))
         return total
+
+
+def window_order(
+    column: np.ndarray, row: np.ndarray, scored: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """The order in which the windows are taken until :data:`BUDGET_SAMPLES` is spent.
+
+    Where every window fits the budget, a seeded permutation: all are taken. Otherwise the
+    windows taken are a *systematic sample along a serpentine path* through the cells (up
+    one column of cells and down the next; a seeded random start, a stride of the scored
+    samples over the budget), then the others in seeded random order. Neighbouring windows
+    tell alike (on bei with the 8 x 8 prior at 30,000 samples, the Matérn 7/2 minus SE
+    difference of adjacent windows correlates at 0.26), so a sample spread evenly over the
+    site varies less from seed to seed than a random one: sd 3.8 against 5.9 nats for that
+    difference over 400 draws of 47 of its 81 windows (docs/terrain.md "Windows spread over
+    the site"; a spatially balanced sample, as in Stevens & Olsen 2004).
+
+    Parameters
+    ----------
+    column, row : ndarray of int, shape (n_windows,)
+        Each window's cell.
+    scored : ndarray of int, shape (n_windows,)
+        Samples each window would score (0: too few to be scored).
+    rng : numpy.random.Generator
+        Draws the start and the others' order.
+
+    Returns
+    -------
+    ndarray of int, shape (n_windows,)
+        A permutation of the windows.
+    """
+    n = scored.size
+    total = int(scored.sum())
+    if total <= BUDGET_SAMPLES:
+        return rng.permutation(n)
+    path = np.lexsort((np.where(column % 2 == 0, row, -row), column))
+    path = path[scored[path] > 0]
+    stride = total / BUDGET_SAMPLES  # windows along the path per window taken, > 1
+    start = rng.uniform(0.0, stride)
+    first = path[np.arange(start, path.size, stride).astype(int)]
+    others = np.setdiff1d(np.arange(n), first)
+    return np.concatenate([first, others[rng.permutation(others.size)]])
 
 
 def score_candidates(

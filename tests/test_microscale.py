@@ -94,14 +94,16 @@ def test_fitted_nugget_over_stated_noise_becomes_ground_and_the_check_sees_it():
 def test_faceted_real_dem_with_a_coarse_prior_at_50k_covers():
     # jacksboro (matplotlib ships it), bilinear facets, 50,000 samples, the 8 x 8 prior.
     # Before the microscale part (white nugget 0.00025 m^2): 62.6 / 91.2 % at 68 / 95
-    # (benchmarks/results/real_terrain_linear_s19_50k.json); with it 65.1 / 93.0 %.
+    # (benchmarks/results/real_terrain_linear_s19_50k.json); with it 65.1 / 93.0 %. Since
+    # 0.33.0 (the left-out samples' windows spread over the site) the window evidence keeps
+    # a Matérn 5/2 without the part: 67.9 / 94.25 %. What must hold is the coverage.
     real_dems, truth = real_site("jacksboro", resampling="linear")
     from terrain import coarse_dem
 
     samples = real_dems.track_samples(truth, 50_000, seed=0)
     grid = Grid.from_dataarray(truth)
     gp = TerrainGP(seed=0, mean=coarse_dem(truth)).fit(samples)
-    assert gp.microscale_ is not None
+    assert gp.window_plan_ is not None and gp.window_plan_.n_over_budget > 0  # spread
     ds = gp.predict_grid(grid)
     e = evaluate(ds.elevation.values.ravel(), truth.values.ravel(), ds.elevation_std.values.ravel())
     assert 0.92 <= e["coverage_95"] <= 0.98 and 0.62 <= e["coverage_68"] <= 0.76

@@ -21,6 +21,7 @@ from terrain.window_evidence import (
     WINDOW_SPACINGS,
     WindowPlan,
     score_candidates,
+    window_order,
 )
 
 
@@ -133,6 +134,44 @@ def test_crowded_windows_are_thinned_and_the_budget_holds():
     assert max(len(x) for x in plan.X) == MAX_WINDOW_SAMPLES  # edge squares hold fewer
     assert BUDGET_SAMPLES <= plan.n_samples < BUDGET_SAMPLES + MAX_WINDOW_SAMPLES
     assert plan.n_over_budget > 0
+
+
+def _cells(columns=10, rows=10, scored=1_000):
+    column, row = np.divmod(np.arange(columns * rows), rows)
+    return column, row, np.full(columns * rows, scored)
+
+
+def test_every_window_taken_in_the_seeded_order_when_all_fit_the_budget():
+    column, row, scored = _cells(scored=BUDGET_SAMPLES // 100)  # 100 windows, the budget
+    order = window_order(column, row, scored, np.random.default_rng(3))
+    # the order of sessions 23-32, draw for draw: every plan under the budget is unchanged
+    assert np.array_equal(order, np.random.default_rng(3).permutation(100))
+
+
+def test_windows_over_the_budget_are_a_sample_spread_over_the_site():
+    column, row, scored = _cells(scored=2 * BUDGET_SAMPLES // 100)  # twice the budget
+    scored[[0, 55]] = 0  # too few samples: never among the first taken
+    order = window_order(column, row, scored, np.random.default_rng(1))
+    assert np.array_equal(np.sort(order), np.arange(100))  # a permutation
+    used = np.cumsum(scored[order])
+    first = order[: int(np.searchsorted(used, BUDGET_SAMPLES)) + 1]  # what the budget takes
+    assert not np.isin([0, 55], first).any()
+    # a stride of about two along the serpentine path: about five windows in every column
+    # of ten (exactly five without the two skipped windows), and every column sampled
+    assert set(np.bincount(column[first], minlength=10).tolist()) <= {4, 5, 6}
+    # so the budgeted sum of a field with a trend across the site varies less from seed to
+    # seed than a random choice of as many windows (measured: sd 3.0 against 16.7)
+    field = column + 0.5 * row
+
+    def budgeted(order):
+        taken = order[: int(np.searchsorted(np.cumsum(scored[order]), BUDGET_SAMPLES)) + 1]
+        return field[taken].sum()
+
+    spread = [
+        budgeted(window_order(column, row, scored, np.random.default_rng(s))) for s in range(200)
+    ]
+    random = [budgeted(np.random.default_rng(s).permutation(100)) for s in range(200)]
+    assert np.std(spread) < 0.5 * np.std(random)
 
 
 def test_no_windows_when_the_subset_holds_the_survey():
