@@ -153,8 +153,11 @@ def test_windows_over_the_budget_are_a_sample_spread_over_the_site():
     scored[[0, 55]] = 0  # too few samples: never among the first taken
     order = window_order(column, row, scored, np.random.default_rng(1))
     assert np.array_equal(np.sort(order), np.arange(100))  # a permutation
-    used = np.cumsum(scored[order])
-    first = order[: int(np.searchsorted(used, BUDGET_SAMPLES)) + 1]  # what the budget takes
+
+    def taken(order):  # the windows the budget takes
+        return order[: int(np.searchsorted(np.cumsum(scored[order]), BUDGET_SAMPLES)) + 1]
+
+    first = taken(order)
     assert not np.isin([0, 55], first).any()
     # a stride of about two along the serpentine path: about five windows in every column
     # of ten (exactly five without the two skipped windows), and every column sampled
@@ -163,14 +166,11 @@ def test_windows_over_the_budget_are_a_sample_spread_over_the_site():
     # seed than a random choice of as many windows (measured: sd 3.0 against 16.7)
     field = column + 0.5 * row
 
-    def budgeted(order):
-        taken = order[: int(np.searchsorted(np.cumsum(scored[order]), BUDGET_SAMPLES)) + 1]
-        return field[taken].sum()
-
     spread = [
-        budgeted(window_order(column, row, scored, np.random.default_rng(s))) for s in range(200)
+        field[taken(window_order(column, row, scored, np.random.default_rng(s)))].sum()
+        for s in range(200)
     ]
-    random = [budgeted(np.random.default_rng(s).permutation(100)) for s in range(200)]
+    random = [field[taken(np.random.default_rng(s).permutation(100))].sum() for s in range(200)]
     assert np.std(spread) < 0.5 * np.std(random)
 
 
