@@ -8,12 +8,13 @@
     python benchmarks/real_terrain.py --resampling linear     # truth bilinear between nodes
     python benchmarks/real_terrain.py --noise-sd 0.05         # another signal-to-noise ratio
     python benchmarks/real_terrain.py --survey west-half      # east half on the prior alone
+    python benchmarks/real_terrain.py --scattered 0.02        # the rover kept to its tracks
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
 volcano — mapped onto 600 m x 600 m at 2 m, 25 m relief); samples: ``track_samples`` (8
-rover tracks + 10 % scattered, noise sd ``--noise-sd`` (0.2 m by default), stated in
-``z_var`` unless ``--noise unstated``, seed ``--draw``, 0 by default: every
+rover tracks, ``--tracks``, + 10 % scattered, ``--scattered``; noise sd ``--noise-sd``, 0.2 m
+by default, stated in ``z_var`` unless ``--noise unstated``; seed ``--draw``, 0 by default: every
 site gets the same positions and noise, so the rows of one run share one noise draw). Every
 method maps the truth's 300 x 300 cells from the same samples, each in its own process (wall
 time and peak RSS are its own; one at a time: 2 cores):
@@ -77,6 +78,10 @@ WITH_STD = ("glacimap", "glacimap_dem", "glacimap_pycno", "pykrige_ok")
 SEED = 0
 #: Samples' noise sd, m (``track_samples``' default; every result before session 21).
 NOISE_SD = 0.2
+#: The survey's shape (``track_samples``' defaults; every result before session 34): rover
+#: tracks across the site and the fraction of samples scattered over it.
+TRACKS = 8
+SCATTERED = 0.1
 #: Cells at least this far from every sample are scored apart (``rmse_far``...), m.
 FAR_M = 50.0
 # Guards: any case is killed past these; verde_spline is also skipped up front when its dense
@@ -115,6 +120,8 @@ def _data(site: dict, n: int):
     samples = real_dems.track_samples(
         truth,
         n,
+        n_tracks=site.get("tracks", TRACKS),
+        scattered=site.get("scattered", SCATTERED),
         noise_sd=site.get("noise_sd", NOISE_SD),
         seed=site.get("draw", SEED),
         stated_var=site.get("noise", "stated") == "stated",
@@ -622,6 +629,19 @@ def main(argv: list[str] | None = None) -> int:
         "so this sets the survey's signal-to-noise ratio)",
     )
     ap.add_argument(
+        "--tracks",
+        type=int,
+        default=TRACKS,
+        help="rover tracks across the site (8: every result so far)",
+    )
+    ap.add_argument(
+        "--scattered",
+        type=float,
+        default=SCATTERED,
+        help="fraction of the samples scattered uniformly over the site instead of on the "
+        "tracks (0.1: every result so far)",
+    )
+    ap.add_argument(
         "--survey",
         choices=("whole", "west-half"),
         default="whole",
@@ -643,6 +663,8 @@ def main(argv: list[str] | None = None) -> int:
         site["resampling"] = args.resampling
         site["noise_sd"] = args.noise_sd
         site["survey"] = args.survey
+        site["tracks"] = args.tracks
+        site["scattered"] = args.scattered
     sizes = sorted(args.sizes or ((3000,) if args.quick else SIZES))
     import real_dems
 
@@ -663,7 +685,10 @@ def main(argv: list[str] | None = None) -> int:
                 "survey": args.survey,
                 "far_m": FAR_M,
                 "grid": "truth's 2 m grid, 300 x 300 cells",
-                "samples": "real_dems.track_samples: 8 tracks + 10 % scattered, sd noise_sd_m",
+                "tracks": args.tracks,
+                "scattered": args.scattered,
+                "samples": "real_dems.track_samples: `tracks` tracks + a `scattered` fraction "
+                "uniformly over the site, sd noise_sd_m",
                 "targets": TARGETS,
                 "guards": {
                     "limit_s": LIMIT_S,

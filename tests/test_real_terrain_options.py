@@ -1,6 +1,7 @@
 """The real-terrain benchmark's options of session 21: ``--noise-sd`` (the survey's
 signal-to-noise ratio, drawn into the samples and stated in their ``z_var``) and ``--survey
-west-half`` (the rover only in the west half; the cells far from every sample scored apart).
+west-half`` (the rover only in the west half; the cells far from every sample scored apart);
+of session 34: ``--tracks`` and ``--scattered`` (the survey's shape).
 
 Reference: the noise is ``track_samples``' N(0, sd^2) on top of the truth it stores in
 ``extra["true_z"]``; 3,000 draws estimate sd to ~1.3 % (sd / sqrt(2 n)), so the checks below
@@ -47,13 +48,32 @@ def test_the_option_is_recorded_in_the_results(real_terrain, tmp_path):
     out = tmp_path / "r.json"
     real_terrain.main(
         ["--sites", "jacksboro", "--sizes", "3000", "--methods", "delaunay", "--noise-sd", "0.1"]
-        + ["--out", str(out)]
+        + ["--tracks", "6", "--scattered", "0.05", "--out", str(out)]
     )
     payload = json.loads(out.read_text())
     assert payload["results"][0]["rmse_hull"] > 0.0
     settings = payload["settings"]
     assert settings["noise_sd_m"] == 0.1
     assert settings["sites"][0]["noise_sd"] == 0.1
+    assert (settings["tracks"], settings["scattered"]) == (6, 0.05)
+    assert (settings["sites"][0]["tracks"], settings["sites"][0]["scattered"]) == (6, 0.05)
+
+
+def test_the_survey_shape_options_reach_the_samples(real_terrain):
+    """``track_samples`` puts round(scattered * n) samples uniformly over the site, the rest
+    within a few lateral_sd (8 m) + 6 m of its wavy track lines: with 4 tracks on 600 m the
+    lines are 150 m apart, so no track sample lies 40 m or more from every line centre."""
+    site = dict(real_terrain.parse_site("jacksboro"), tracks=4, scattered=0.02)
+    truth, grid, samples = real_terrain._data(site, 3000)
+    w, _, e, _ = grid.bounds
+    centres = w + (e - w) / 4 * (np.arange(4) + 0.5)
+    off = np.min(np.abs(samples.xy[:, 0, None] - centres[None, :]), axis=1)
+    assert np.sum(off >= 40.0) <= 60  # only the 60 scattered ones can be that far
+    _, _, default = real_terrain._data(real_terrain.parse_site("jacksboro"), 3000)
+    assert (real_terrain.TRACKS, real_terrain.SCATTERED) == (8, 0.1)
+    d_centres = w + (e - w) / 8 * (np.arange(8) + 0.5)
+    d_off = np.min(np.abs(default.xy[:, 0, None] - d_centres[None, :]), axis=1)
+    assert np.sum(d_off >= 20.0) > 100  # 300 scattered: many between the 8 lines
 
 
 def test_a_west_half_survey_keeps_the_west_samples_only(real_terrain):
