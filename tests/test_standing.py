@@ -63,7 +63,7 @@ def test_counts_per_sample_count_and_misses_named(result_file):
     assert (small["accuracy"], small["truth"], small["held-out"]) == (2, 1, 2)
     assert small["truth misses"] == ["bei/8x8 77.2"]
     assert (large["accuracy"], large["truth"], large["held-out"]) == (1, 2, 1)
-    assert large["accuracy misses"] == ["rm/const 1.02"]
+    assert large["accuracy misses"] == ["rm/const 1.020"]
     assert large["held-out misses"] == ["rm/8x8 +0.5 / -4.5"]
 
 
