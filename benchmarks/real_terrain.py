@@ -656,6 +656,10 @@ def main(argv: list[str] | None = None) -> int:
         help="truth between the DEM's nodes: bicubic (every result so far) or bilinear facets",
     )
     args = ap.parse_args(argv)
+    if args.tracks < 1:
+        ap.error(f"--tracks: expected at least 1 rover track, got {args.tracks}")
+    if not 0.0 <= args.scattered < 1.0:
+        ap.error(f"--scattered: expected a fraction in [0, 1), got {args.scattered}; e.g. 0.02")
     sites = args.sites or [parse_site(s) for s in (("olinda",) if args.quick else SITES)]
     for site in sites:
         site["draw"] = args.draw

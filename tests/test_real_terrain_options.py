@@ -76,6 +76,15 @@ def test_the_survey_shape_options_reach_the_samples(real_terrain):
     assert np.sum(d_off >= 20.0) > 100  # 300 scattered: many between the 8 lines
 
 
+@pytest.mark.parametrize(("option", "value"), [("--tracks", "0"), ("--scattered", "1.5")])
+def test_a_survey_shape_out_of_range_is_refused(real_terrain, tmp_path, capsys, option, value):
+    out = tmp_path / "r.json"
+    with pytest.raises(SystemExit):
+        real_terrain.main(["--sites", "jacksboro", option, value, "--out", str(out)])
+    assert option in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_a_west_half_survey_keeps_the_west_samples_only(real_terrain):
     site = dict(real_terrain.parse_site("jacksboro"), survey="west-half")
     truth, grid, samples = real_terrain._data(site, 3000)
