@@ -51,6 +51,8 @@ STANDING = (
     "real_terrain_scattered2_s34_3k.json",
     "real_terrain_scattered2_s34_50k.json",
 )
+#: The prior mean of each glacimap method, as the misses name it.
+MEANS = {"glacimap": "const", "glacimap_dem": "8x8", "glacimap_pycno": "area-means"}
 #: Which verdict keys make each target (all must pass).
 TARGETS = {
     "accuracy": (("rmse_ok", "rmse_over_delaunay"), ("rbf_ok", "rmse_over_rbf")),
@@ -82,6 +84,8 @@ def load(spec: str | Path) -> dict[str, Any]:
     head, sep, tail = path.rpartition(":")
     if sep and tail.isdigit():
         path, only = head, int(tail)
+    if not Path(path).is_file():
+        raise SystemExit(f"{path}: no such result file; run benchmarks/real_terrain.py --out it")
     data = json.loads(Path(path).read_text())
     if "verdicts" not in data:
         raise SystemExit(f"{path}: no verdicts (a run still going, or not real_terrain.py's)")
@@ -108,7 +112,7 @@ def _miss(row: dict[str, Any], target: str) -> str | None:
             for ok, val in keys
             if not _passed(row.get(ok)) and row.get(val) is not None
         )
-    mean = "8x8" if row["method"].endswith("_dem") else "const"
+    mean = MEANS.get(row["method"], row["method"])
     return f"{row['site']}/{mean} {shown}"
 
 

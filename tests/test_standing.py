@@ -41,6 +41,7 @@ def result_file(tmp_path):
         _verdict("rm", 50000, "glacimap", rmse_over_rbf=1.02, rbf_ok="MISS"),
         _verdict("rm", 50000, "glacimap_dem", d68=-4.5, cv_ok="MISS"),
         _verdict("rm", 50000, "delaunay"),  # not a glacimap row: not counted
+        _verdict("rm", 50000, "glacimap_pycno", cov95=91.0, cov95_ok="MISS"),
     ]
     results = [
         {"site": "bei", "n": 3000, "method": "glacimap", "info": {"kernel": "Matern(nu=1.5)"}},
@@ -58,11 +59,12 @@ def result_file(tmp_path):
 
 def test_counts_per_sample_count_and_misses_named(result_file):
     lines = standing.counts(standing.load(result_file))
-    assert [(ln["n"], ln["rows"]) for ln in lines] == [(3000, 2), (50000, 2)]
+    assert [(ln["n"], ln["rows"]) for ln in lines] == [(3000, 2), (50000, 3)]
     small, large = lines
     assert (small["accuracy"], small["truth"], small["held-out"]) == (2, 1, 2)
     assert small["truth misses"] == ["bei/8x8 77.2"]
-    assert (large["accuracy"], large["truth"], large["held-out"]) == (1, 2, 1)
+    assert (large["accuracy"], large["truth"], large["held-out"]) == (2, 2, 2)
+    assert large["truth misses"] == ["rm/area-means 91.0"]
     assert large["accuracy misses"] == ["rm/const 1.020"]
     assert large["held-out misses"] == ["rm/8x8 +0.5 / -4.5"]
 
@@ -75,7 +77,7 @@ def test_one_sample_count_and_family(result_file):
         ("matern32", "<20k", 1),
         ("not recorded", "<20k", 1),  # no kernel in the results for bei/8x8
         ("se", ">=20k", 1),
-        ("not recorded", ">=20k", 1),
+        ("not recorded", ">=20k", 2),
     }
 
 
@@ -86,10 +88,15 @@ def test_a_file_without_verdicts_is_refused(tmp_path):
         standing.load(path)
 
 
+def test_a_missing_file_is_named(tmp_path):
+    with pytest.raises(SystemExit, match="no such result file"):
+        standing.load(tmp_path / "absent.json:3000")
+
+
 def test_main_prints_the_table_and_writes_json(result_file, tmp_path, capsys):
     out = tmp_path / "standing.json"
     assert standing.main([str(result_file), "--by-family", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "truth misses: bei/8x8 77.2" in text
     payload = json.loads(out.read_text())
-    assert payload["total"]["rows"] == 4 and payload["total"]["accuracy"] == 3
+    assert payload["total"]["rows"] == 5 and payload["total"]["accuracy"] == 4
