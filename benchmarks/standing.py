@@ -65,20 +65,8 @@ def _passed(value: Any) -> bool:
     return value is True or value == "PASS"
 
 
-def _family(kernel: str) -> str:
-    """``Matern(..., nu=1.5) + Matern(...)`` -> ``matern32+matern32`` (Microscale left out)."""
-    names = {"1.5": "matern32", "2.5": "matern52", "3.5": "matern72"}
-    parts = []
-    for part in kernel.split(" + "):
-        if part.startswith("SquaredExponential"):
-            parts.append("se")
-        elif part.startswith("Matern"):
-            parts.append(names.get(part.split("nu=")[1][:3], "matern"))
-    return "+".join(parts) or "not recorded"
-
-
 def load(spec: str | Path) -> dict[str, Any]:
-    """A result file's verdicts and the kernel of each glacimap row; ``FILE:N`` keeps the
+    """A result file's verdicts and the kernel family of each glacimap row; ``FILE:N`` keeps the
     rows of ``N`` samples only."""
     path, only = str(spec), None
     head, sep, tail = path.rpartition(":")
@@ -89,14 +77,19 @@ def load(spec: str | Path) -> dict[str, Any]:
     data = json.loads(Path(path).read_text())
     if "verdicts" not in data:
         raise SystemExit(f"{path}: no verdicts (a run still going, or not real_terrain.py's)")
+    # the family the search kept, as it named it (kernel_search.FAMILY; Microscale aside)
     kernels = {
-        (r["site"], r["n"], r["method"]): r.get("info", {}).get("kernel", "")
+        (r["site"], r["n"], r["method"]): next(
+            (c["name"] for c in r.get("info", {}).get("kernel_scores") or [] if c["selected"]),
+            "not recorded",
+        )
         for r in data["results"]
     }
     rows = []
     for v in data["verdicts"]:
         if v["method"].startswith("glacimap") and (only is None or int(v["n"]) == only):
-            rows.append({**v, "kernel": kernels.get((v["site"], v["n"], v["method"]), "")})
+            family = kernels.get((v["site"], v["n"], v["method"]), "not recorded")
+            rows.append({**v, "family": family})
     return {"file": Path(path).name, "rows": rows}
 
 
@@ -139,7 +132,7 @@ def by_family(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for result in results:
         for row in result["rows"]:
             size = ">=20k" if row["n"] >= 20_000 else "<20k"
-            groups[(_family(row["kernel"]), size)].append(row)
+            groups[(row["family"], size)].append(row)
     out = []
     for (family, size), rows in sorted(groups.items()):
         out.append(

@@ -44,12 +44,22 @@ def result_file(tmp_path):
         _verdict("rm", 50000, "glacimap_pycno", cov95=91.0, cov95_ok="MISS"),
     ]
     results = [
-        {"site": "bei", "n": 3000, "method": "glacimap", "info": {"kernel": "Matern(nu=1.5)"}},
+        {
+            "site": "bei",
+            "n": 3000,
+            "method": "glacimap",
+            "info": {"kernel_scores": [{"name": "matern32", "selected": True}]},
+        },
         {
             "site": "rm",
             "n": 50000,
             "method": "glacimap",
-            "info": {"kernel": "SquaredExponential(v) + Microscale(v)"},
+            "info": {
+                "kernel_scores": [
+                    {"name": "matern52", "selected": False},
+                    {"name": "se", "selected": True},
+                ]
+            },
         },
     ]
     path = tmp_path / "real_terrain_x.json"
