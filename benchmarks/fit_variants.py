@@ -132,7 +132,7 @@ def _refine_plan(variant: str, real: Any) -> Any:
 
 
 def _averaged_lml(real_lml: Any, plan_type: Any, seeds: tuple[int, int]) -> Any:
-    """``_Search.lml`` whose refine (m = 25) averages its value and gradient over the plans
+    """``FamilySearch.lml`` whose refine (m = 25) averages its value and gradient over the plans
     drawn from ``seeds``; the screen's is as it is."""
 
     def lml(self, kernel, nugget, grad=False):
@@ -172,11 +172,11 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
     truth, grid, samples = data
     out: dict[str, Any] = {"site": site["label"], "variant": variant}
     patched = [  # what a variant may replace, restored after it
-        (search._Search, "optimize"),
+        (search.FamilySearch, "optimize"),
         (gp_module, "select_kernel"),
         (windows, "BUDGET_SAMPLES"),
         (search, "VecchiaPlan"),
-        (search._Search, "lml"),
+        (search.FamilySearch, "lml"),
         (search, "REFINE_FTOL"),
         (gp_module, "microscale_part"),
     ]
@@ -205,13 +205,13 @@ def case(site: dict, variant: str, data: tuple) -> dict[str, Any]:
 def _patch(variant: str, search: Any, gp_module: Any, windows: Any, saved: list) -> None:
     """Apply one variant's patch (``saved``: the patched names' values, in ``case``'s order)."""
     if variant == "no-refine":
-        screen = search._Search.optimize
+        screen = search.FamilySearch.optimize
 
         def optimize(self, kernel, nugget, maxiter=200, ftol=None):
             refine = self.ftol == search.REFINE_FTOL
             return None if refine else screen(self, kernel, nugget, maxiter, ftol)
 
-        search._Search.optimize = optimize
+        search.FamilySearch.optimize = optimize
     elif variant.startswith("refine-m"):
         m = int(variant.removeprefix("refine-m"))
         select = saved[1]
@@ -222,7 +222,7 @@ def _patch(variant: str, search: Any, gp_module: Any, windows: Any, saved: list)
         search.VecchiaPlan = _refine_plan(variant, saved[3])
     elif variant.startswith("avg2-"):
         seed = int(variant.removeprefix("avg2-"))
-        search._Search.lml = _averaged_lml(saved[4], saved[3], (seed, seed + 100))
+        search.FamilySearch.lml = _averaged_lml(saved[4], saved[3], (seed, seed + 100))
         search.REFINE_FTOL = 1e-6
     elif variant == "floor":
         part = saved[6]

@@ -4,6 +4,7 @@
 ``factorgraph`` or ``toolkit``. The names below are the public contract.
 """
 
+from .anisotropy import Anisotropy
 from .baselines import delaunay_linear
 from .change import difference
 from .coregister import Coregistration, coregister
@@ -47,6 +48,7 @@ from .volume import VolumeChange, volume_change
 
 __all__ = [
     "DEFAULT_CRS",
+    "Anisotropy",
     "CRSMismatchError",
     "DegenerateFitWarning",
     "ConstantMean",

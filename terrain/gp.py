@@ -14,13 +14,13 @@ chunk by chunk without the (m, m) posterior covariance.
 
 from __future__ import annotations
 
-import json
 import time
 from typing import Any
 
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 
+from .anisotropy import Anisotropy
 from .coarse_variance import predict_checked_lattice, variance_step
 from .errors import NotFittedError, bad_input
 from .exact_predict import predict_exact
@@ -33,7 +33,7 @@ from .kernels import Kernel
 from .linalg import cholesky_jitter, single_blas_thread
 from .microscale import microscale_part, windowed_part
 from .prior import as_mean_function
-from .product import json_rows, mean_coefficients, software_version, terrain_dataset
+from .product import gp_provenance, terrain_dataset
 from .samples import ElevationSamples
 from .tiled import (
     TileSpec,
@@ -111,11 +111,19 @@ class TerrainGP(HyperparameterMixin):
         ``False``: never.
     amplitude_prior_sd : float
         Prior sd of a tile's log amplitude around the global fit (1.0: a factor e).
+    anisotropy : "auto", Anisotropy or None
+        Ground smoother along one azimuth (:mod:`terrain.anisotropy`). ``"auto"`` (default):
+        with a kernel search, a geometric anisotropy profiled for the winner and kept on
+        strong evidence (BIC); with a given kernel, isotropic. An :class:`Anisotropy`: that
+        one, every fit in its coordinates. ``None``: isotropic.
 
     Attributes
     ----------
     kernel_ : Kernel
         Kernel with the fitted hyperparameters.
+    anisotropy_ : Anisotropy
+        The geometry of the kernel: length scales of ``kernel_`` are across the grain,
+        ``ratio`` times longer along ``azimuth_deg`` (isotropic: ratio 1).
     nugget_ : float
         Fitted (or fixed) nugget, m^2; the lower bound of ``nugget_bounds`` when the fitted
         one became ``microscale_`` (or the window evidence gave it no weight).
@@ -158,6 +166,7 @@ class TerrainGP(HyperparameterMixin):
         exact_max_samples: int = 4000,
         local_amplitude: bool | str = "auto",
         amplitude_prior_sd: float = 1.0,
+        anisotropy: Anisotropy | str | None = "auto",
     ) -> None:
         self.kernel = kernel
         self.mean = mean
@@ -173,6 +182,7 @@ class TerrainGP(HyperparameterMixin):
         self.exact_max_samples = exact_max_samples
         self.local_amplitude = local_amplitude
         self.amplitude_prior_sd = amplitude_prior_sd
+        self.anisotropy = anisotropy
 
     # -- settings ---------------------------------------------------------------------------
     def _check_settings(self) -> None:
@@ -217,7 +227,9 @@ class TerrainGP(HyperparameterMixin):
         self.crs_ = samples.crs
         self.samples_ = samples
         self.X_offset_ = samples.xy.mean(axis=0)  # centred coordinates: exact cdist digits
-        X = samples.xy - self.X_offset_
+        given = self.anisotropy if isinstance(self.anisotropy, Anisotropy) else Anisotropy()
+        self.anisotropy_ = given  # the kernel's coordinates: X = A (xy - offset)
+        X = self._kernel_xy(samples.xy)
         resid = samples.z - np.asarray(mean(samples.xy), dtype=float)
         self.X_train_, self.y_resid_, self.z_var_ = X, resid, np.asarray(samples.z_var)
 
@@ -226,11 +238,12 @@ class TerrainGP(HyperparameterMixin):
         self.optimizer_runs_ = []
         self.kernel_scores_ = []
         self.window_plan_ = None
+        self.anisotropy_evidence_ = None
         if self.optimize and self.max_fit_samples is not None and samples.n > self.max_fit_samples:
             self.fit_index_ = np.sort(
                 rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
             )
-        widest = largest_gap(samples.xy)  # the survey's widest gap, m (tiling, near ties)
+        widest = largest_gap(X)  # the survey's widest gap, m (tiling, near ties)
         spacing = median_spacing(X) if samples.n < 200_000 else None
         if self._searches_kernel:
             idx = self.fit_index_
@@ -238,6 +251,11 @@ class TerrainGP(HyperparameterMixin):
             # generator, spawned: the main stream and every other draw stay as they were).
             windows = WindowPlan.build(X, resid, self.z_var_, idx, rng.spawn(1)[0])
             self.window_plan_ = windows
+            spacing = median_spacing(X) if spacing is None else spacing
+            if self.anisotropy == "auto":  # the search then runs in the kernel's coordinates
+                X, windows, widest, spacing = self._fit_geometry(
+                    samples, resid, windows, nugget, spacing, rng.spawn(1)[0]
+                )
             choice = select_kernel(
                 X[idx],
                 resid[idx],
@@ -246,7 +264,7 @@ class TerrainGP(HyperparameterMixin):
                 fit_nugget=self.fit_nugget,
                 nugget=nugget,
                 nugget_bounds=self.nugget_bounds,
-                spacing=median_spacing(X) if spacing is None else spacing,
+                spacing=spacing,
                 widest_gap=widest,
                 windows=windows,
                 rng=rng,
@@ -356,6 +374,11 @@ class TerrainGP(HyperparameterMixin):
         return self.H_, np.asarray(self.mean_.basis(xy), dtype=float), cov
 
     # -- predict ----------------------------------------------------------------------------
+    def _kernel_xy(self, xy: np.ndarray) -> np.ndarray:
+        """Map coordinates (n, 2), m, in the kernel's space: centred, then the fitted
+        geometric anisotropy (:mod:`terrain.anisotropy`; none: centred only)."""
+        return self.anisotropy_.apply(np.asarray(xy, dtype=float) - self.X_offset_)
+
     def _check_fitted(self) -> None:
         if not hasattr(self, "method_"):
             raise NotFittedError("This TerrainGP is not fitted yet. Call fit(samples) first.")
@@ -403,7 +426,7 @@ class TerrainGP(HyperparameterMixin):
         )
         if self.predict_route_ == "tiled":
             resid_mean, std, stats = predict_tiled(
-                xy - self.X_offset_,
+                self._kernel_xy(xy),
                 self.X_train_,
                 self.y_resid_,
                 self.z_var_ + self.nugget_,
@@ -418,7 +441,7 @@ class TerrainGP(HyperparameterMixin):
             if return_std and include_nugget:
                 std = np.sqrt(std**2 + self.nugget_)
             return (mean, std) if return_std else mean
-        Xq = xy - self.X_offset_
+        Xq = self._kernel_xy(xy)
         mean, std = predict_exact(
             Xq,
             self.X_train_,
@@ -471,30 +494,7 @@ class TerrainGP(HyperparameterMixin):
         )
 
     def provenance(self) -> dict[str, Any]:
-        """Flat, netCDF-safe description of how this map was made."""
+        """Flat, netCDF-safe description of how this map was made
+        (:func:`terrain.product.gp_provenance`)."""
         self._check_fitted()
-        hyper = dict(
-            zip(self.kernel_.param_names, np.exp(self.kernel_.theta).tolist(), strict=True)
-        )
-        hyper["nugget"] = self.nugget_
-        method, wp = "exact GP (Rasmussen & Williams Alg. 2.1)", self.window_plan_
-        if self.method_ == "tiled":
-            sd = self.amplitude_prior_sd if self.local_amplitude_ else None
-            method = self.tiles_.describe(sd)
-        return {
-            "method": method,
-            "kernel": repr(self.kernel_),
-            "hyperparameters": json.dumps(hyper),
-            "mean_function": repr(self.mean_),
-            "n_samples": int(self.samples_.n),
-            "n_fit_samples": int(self.fit_index_.size),
-            "n_merged_duplicates": int(self.samples_.n_merged),
-            "log_marginal_likelihood": self.log_marginal_likelihood_value_,
-            "jitter": self.jitter_,
-            "kernel_selection": json.dumps(json_rows(self.kernel_scores_)),
-            "kernel_windows": "none" if wp is None else wp.describe(),
-            "mean_coefficients": json.dumps(mean_coefficients(self.mean_)),
-            "degenerate_fit": int(self.degenerate_),
-            "seed": int(self.seed),
-            "software": f"glacimap {software_version()}",
-        }
+        return gp_provenance(self)

@@ -1,7 +1,8 @@
 """Hyperparameters of a given kernel by Eq 9: the log-parameter vector, L-BFGS-B restarts
 and the exact log marginal likelihood (a mixin of :class:`terrain.gp.TerrainGP`).
 
-A kernel *family* search (``kernel="auto"``) lives in :mod:`terrain.kernel_search`.
+A kernel *family* search (``kernel="auto"``) lives in :mod:`terrain.kernel_search`; the
+geometric anisotropy it runs in, in :mod:`terrain.anisotropy`.
 """
 
 from __future__ import annotations
@@ -10,16 +11,44 @@ import numpy as np
 from scipy.optimize import minimize
 from threadpoolctl import threadpool_limits
 
+from .anisotropy import select_anisotropy
 from .errors import NumericalError, bad_input
 from .kernels import Kernel, SquaredExponential
 from .likelihood import gaussian_lml
 from .linalg import one_blas_thread
+from .tiled import largest_gap
 
 __all__ = ["HyperparameterMixin"]
 
 
 class HyperparameterMixin:
     """Eq 9 and its maximization for a :class:`~terrain.gp.TerrainGP` with a given kernel."""
+
+    def _fit_geometry(self, samples, resid, windows, nugget, spacing, rng):
+        """Choose the kernel's geometric anisotropy on the fit subset
+        (:func:`terrain.anisotropy.select_anisotropy`, ``rng`` its own child stream) and,
+        when one is kept, move the samples and the windows into its coordinates. Returns
+        ``(X, windows, widest_gap, spacing)`` in the kernel's coordinates, m."""
+        from .kernel_search import median_spacing
+
+        X, idx = self.X_train_, self.fit_index_
+        geometry, self.anisotropy_evidence_ = select_anisotropy(
+            X[idx],
+            resid[idx],
+            self.z_var_[idx],
+            fit_nugget=self.fit_nugget,
+            nugget=nugget,
+            nugget_bounds=self.nugget_bounds,
+            spacing=spacing,
+            rng=rng,
+        )
+        if geometry.isotropic:
+            return X, windows, largest_gap(X), spacing
+        self.anisotropy_ = geometry
+        X = self.X_train_ = self._kernel_xy(samples.xy)
+        windows = None if windows is None else windows.transformed(geometry.matrix())
+        self.window_plan_ = windows
+        return X, windows, largest_gap(X), median_spacing(X)
 
     # -- hyperparameter vector: log([kernel params..., nugget]) -----------------------------
     def _theta(self, kernel: Kernel, nugget: float) -> np.ndarray:

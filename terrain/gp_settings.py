@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .anisotropy import as_anisotropy
 from .errors import bad_input
 from .kernel_search import candidate_names
 from .samples import ElevationSamples
@@ -74,6 +75,7 @@ def check_settings(gp: TerrainGP) -> None:
             '"auto", "exact" or "tiled"',
             '"auto" takes exact up to exact_max_samples and tiled above',
         )
+    as_anisotropy(gp.anisotropy)
     if gp.tiles is not None and not isinstance(gp.tiles, TileSpec):
         raise bad_input("tiles", gp.tiles, "a terrain.tiled.TileSpec or None", "")
     if int(gp.exact_max_samples) < 3:

@@ -179,8 +179,9 @@ def warn_if_degenerate(kernel: Any, X: np.ndarray | None, spacing: float | None 
     return True
 
 
-class _Search:
-    """One search over the family on one fit subset (shared plan and bounds)."""
+class FamilySearch:
+    """One search over the family on one fit subset (shared plan and bounds): Vecchia
+    likelihoods (``lml``) and L-BFGS-B fits (``optimize``, ``single``, ``pair``)."""
 
     def __init__(self, X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing, m, rng, ftol):
         self.X, self.r, self.z_var = X, r, z_var
@@ -285,6 +286,16 @@ class _Search:
         return out
 
 
+def nugget_start(search: FamilySearch, fit_nugget: bool, nugget: float, bounds: Any) -> float:
+    """Nugget start: what nearest-neighbour differences show beyond the stated noise."""
+    if not fit_nugget:
+        return float(nugget)
+    _, nn = cKDTree(search.X).query(search.X, k=2)
+    semiv = 0.5 * float(np.median((search.r - search.r[nn[:, 1]]) ** 2))
+    lo, hi = bounds
+    return float(np.clip(max(semiv - float(np.mean(search.z_var)), 1e-3 * search.var), lo, hi))
+
+
 def select_kernel(
     X: np.ndarray,
     r: np.ndarray,
@@ -362,14 +373,8 @@ def select_kernel(
     spacing = median_spacing(X) if spacing is None else float(spacing)
     m_screen, m_refine = neighbours
     args = (X, r, z_var, fit_nugget, nugget, nugget_bounds, spacing)
-    search = _Search(*args, m_screen, rng, SCREEN_FTOL)
-    # Nugget start: what nearest-neighbour differences show beyond the stated noise.
-    _, nn = cKDTree(X).query(X, k=2)
-    semiv = 0.5 * float(np.median((r - r[nn[:, 1]]) ** 2))
-    nug0 = float(nugget)
-    if fit_nugget:
-        lo, hi = nugget_bounds
-        nug0 = float(np.clip(max(semiv - float(np.mean(z_var)), 1e-3 * search.var), lo, hi))
+    search = FamilySearch(*args, m_screen, rng, SCREEN_FTOL)
+    nug0 = nugget_start(search, fit_nugget, nugget, nugget_bounds)
     # One chain per family: its single fit, then the two-scale fit started from it. The
     # chains share nothing but the plan (read-only) and use no random numbers, so they run
     # in threads (numpy and LAPACK release the GIL) and give the same fits, bit for bit,
@@ -462,7 +467,7 @@ def select_kernel(
     rows.sort(key=lambda r_: (not r_["selected"], np.inf if r_["bic"] is None else r_[key]))
     k, nug, _, _ = fits[best["name"]]
     # Refine the winner on larger conditioning sets (closer to the exact Eq 9).
-    refine = _Search(*args, m_refine, rng, REFINE_FTOL)
+    refine = FamilySearch(*args, m_refine, rng, REFINE_FTOL)
     # One chain now: each likelihood's rows go in REFINE_PARTS pieces over the threads (the
     # pieces, not the thread count, fix the bits; measured: docs/terrain.md).
     refine.parts = REFINE_PARTS

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import numpy as np
@@ -83,3 +84,33 @@ def mean_coefficients(mean: Any) -> dict[str, Any]:
     sd = np.sqrt(np.diag(np.atleast_2d(getattr(mean, "coef_cov_", np.zeros((1, 1))))))
     names = getattr(mean, "coef_names", [f"b{i}" for i in range(len(coef))])
     return {n: [float(c), float(s)] for n, c, s in zip(names, np.ravel(coef), sd, strict=False)}
+
+
+def gp_provenance(gp: Any) -> dict[str, Any]:
+    """Flat, netCDF-safe description of how a fitted :class:`terrain.TerrainGP`'s map was
+    made: method, kernel and its geometric anisotropy with their evidence, hyperparameters,
+    mean, sample counts, seed and software."""
+    hyper = dict(zip(gp.kernel_.param_names, np.exp(gp.kernel_.theta).tolist(), strict=True))
+    hyper["nugget"] = gp.nugget_
+    method, wp = "exact GP (Rasmussen & Williams Alg. 2.1)", gp.window_plan_
+    if gp.method_ == "tiled":
+        method = gp.tiles_.describe(gp.amplitude_prior_sd if gp.local_amplitude_ else None)
+    evidence = json_rows([gp.anisotropy_evidence_ or {}])[0]
+    return {
+        "method": method,
+        "kernel": repr(gp.kernel_),
+        "anisotropy": json.dumps({**gp.anisotropy_.to_dict(), **evidence}),
+        "hyperparameters": json.dumps(hyper),
+        "mean_function": repr(gp.mean_),
+        "n_samples": int(gp.samples_.n),
+        "n_fit_samples": int(gp.fit_index_.size),
+        "n_merged_duplicates": int(gp.samples_.n_merged),
+        "log_marginal_likelihood": gp.log_marginal_likelihood_value_,
+        "jitter": gp.jitter_,
+        "kernel_selection": json.dumps(json_rows(gp.kernel_scores_)),
+        "kernel_windows": "none" if wp is None else wp.describe(),
+        "mean_coefficients": json.dumps(mean_coefficients(gp.mean_)),
+        "degenerate_fit": int(gp.degenerate_),
+        "seed": int(gp.seed),
+        "software": f"glacimap {software_version()}",
+    }

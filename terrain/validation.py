@@ -251,18 +251,14 @@ def _clone(est: Any, **overrides: Any) -> Any:
 
 
 def _fixed_overrides(est: Any) -> dict[str, Any]:
-    """The fitted model's kernel and nugget, held fixed, and the GP it chose (exact or
-    tiled, with or without per-tile amplitudes), so that a fold with fewer samples than the
-    map is not scored with another model (``local_amplitude="auto"`` turns on from 1,000)."""
+    """The fitted model's kernel, nugget and anisotropy, held fixed, and the GP it chose
+    (exact or tiled, with or without per-tile amplitudes), so that a fold with fewer samples
+    than the map is not scored with another model (``local_amplitude="auto"`` turns on from
+    1,000)."""
     out = dict(_HYPER_FIXED)
-    if hasattr(est, "kernel_"):
-        out["kernel"] = est.kernel_
-    if hasattr(est, "nugget_"):
-        out["nugget"] = est.nugget_
-    if hasattr(est, "method_"):
-        out["method"] = est.method_
-    if hasattr(est, "local_amplitude_"):
-        out["local_amplitude"] = est.local_amplitude_
+    for name in ("kernel", "nugget", "method", "local_amplitude", "anisotropy"):
+        if hasattr(est, name + "_"):
+            out[name] = getattr(est, name + "_")
     return out
 
 
@@ -421,7 +417,8 @@ def cross_validate(
         if overrides and tiled and getattr(estimator, "tiles", None) is None:
             # The map's kernel on tiles that reach across the fold's own held-out gaps: the
             # check is of the map, which has no such gaps (docs/terrain.md "Folds' tiles").
-            fold_tiles = tiles_reaching_gaps(reference.kernel_, samples.xy[~test])
+            fold_xy = reference.anisotropy_.apply(samples.xy[~test])  # the kernel's space
+            fold_tiles = tiles_reaching_gaps(reference.kernel_, fold_xy)
             fold_overrides = {**overrides, "tiles": fold_tiles}
         model = _clone(estimator, **fold_overrides).fit(samples.subset(~test))
         m, s = model.predict(samples.xy[test], return_std=True)

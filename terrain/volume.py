@@ -131,14 +131,15 @@ def gp_integral(
     X, L, Wb, cov_b, route, idx = _factor(gp, subset_max, seed)
     W = np.asarray(weights, float)
 
-    def cov(lags: np.ndarray) -> np.ndarray:
-        return gp.kernel_(lags, np.zeros((1, 2)))[:, 0]
+    def cov(lags: np.ndarray) -> np.ndarray:  # lags in metres, the kernel in its own space
+        return gp.kernel_(gp.anisotropy_.apply(lags), np.zeros((1, 2)))[:, 0]
 
     prior = covariance_sum(W, grid.resolution, cov)  # w^T K_qq w, one FFT convolution
     # v = K_Xq w summed exactly (chunked): the posterior is a small difference of two large
     # numbers, so v must be exact to the last digits (an interpolated v is not).
     sel = W > 0
-    q = grid.xy()[sel.ravel()] - gp.X_offset_
+    q_xy = grid.xy()[sel.ravel()]
+    q = gp._kernel_xy(q_xy)
     wq = W[sel]
     v = np.empty(X.shape[0])
     step = max(1, 2**24 // max(wq.size, 1))
@@ -151,7 +152,7 @@ def gp_integral(
     coef = 0.0
     Lu = Lv
     if cov_b is not None:
-        hq = np.asarray(gp.mean_.basis(q + gp.X_offset_), float)
+        hq = np.asarray(gp.mean_.basis(q_xy), float)
         R = wq @ hq - Wb.T @ Lv  # R&W Eq 2.42 for the functional
         coef = float(R @ cov_b @ R)
         Lu = Lv + Wb @ (cov_b @ R)
@@ -205,7 +206,7 @@ def _factor(gp: Any, subset_max: int, seed: int):
     L, _ = cholesky_jitter(K, what="volume_change subset kernel matrix")
     Wb = cov_b = None
     if n_coef(gp.mean_):
-        H = np.asarray(gp.mean_.basis(X + gp.X_offset_), float)
+        H = np.asarray(gp.mean_.basis(gp.samples_.xy[idx]), float)
         _, cov_b = gls_coefficients(gp.kernel_, X, gp.y_resid_[idx], noise, H, L)
         Wb = solve_triangular(L, H, lower=True, check_finite=False)
     route = f"tiled GP: exact GP on {idx.size} of {n} samples (upper bound)"

@@ -45,7 +45,7 @@ from __future__ import annotations
 import json
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -129,6 +129,15 @@ class WindowPlan:
     def n_samples(self) -> int:
         """Samples scored in all."""
         return int(sum(x.shape[0] for x in self.X))
+
+    def transformed(self, matrix: np.ndarray) -> WindowPlan:
+        """The same windows in the coordinates ``x @ matrix.T`` (a linear map, m: the
+        kernel's space of a geometric anisotropy, :mod:`terrain.anisotropy`)."""
+
+        def move(xs: list | None) -> list | None:
+            return None if xs is None else [x @ matrix.T for x in xs]
+
+        return replace(self, X=move(self.X), X_near=move(self.X_near))
 
     @classmethod
     def build(
