@@ -81,7 +81,7 @@ def _draw(aniso: Anisotropy, n: int = 900, seed: int = 3):
 
 def test_auto_recovers_a_known_grain_and_keeps_isotropic_ground_isotropic():
     true = Anisotropy(azimuth_deg=60.0, ratio=3.0)
-    gp = TerrainGP(seed=0).fit(_draw(true))
+    gp = TerrainGP(seed=0, anisotropy="auto").fit(_draw(true))
     got = gp.anisotropy_
     assert not got.isotropic
     off = abs((got.azimuth_deg - 60.0 + 90.0) % 180.0 - 90.0)  # axial difference, deg
@@ -90,11 +90,11 @@ def test_auto_recovers_a_known_grain_and_keeps_isotropic_ground_isotropic():
     assert ev["kept"] and ev["delta_bic"] >= 6.0 and "Matern" in ev["pilot"]
     assert json.loads(gp.provenance()["anisotropy"])["ratio"] == pytest.approx(got.ratio)
     # the same ground without a grain: the evidence keeps the isotropic kernel
-    iso = TerrainGP(seed=0).fit(_draw(Anisotropy()))
+    iso = TerrainGP(seed=0, anisotropy="auto").fit(_draw(Anisotropy()))
     assert iso.anisotropy_.isotropic
     assert not iso.anisotropy_evidence_["kept"]
-    # anisotropy=None: no profile at all
-    none = TerrainGP(seed=0, anisotropy=None).fit(_draw(true))
+    # the default (None): no profile at all
+    none = TerrainGP(seed=0).fit(_draw(true))
     assert none.anisotropy_.isotropic
     assert none.anisotropy_evidence_ is None
 

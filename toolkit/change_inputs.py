@@ -196,7 +196,7 @@ def rebuild_gp(
         not possible. A GP whose mean differs from the product's elevation by more than
         :data:`REPRODUCE_TOL_M` is not returned.
     """
-    from terrain import Grid, TerrainGP
+    from terrain import Anisotropy, Grid, TerrainGP
     from terrain.grid import north_up
 
     from .samples_io import read_samples
@@ -210,6 +210,8 @@ def rebuild_gp(
     try:
         kernel = kernel_from_provenance(attrs["kernel"], attrs["hyperparameters"])
         nugget = float(json.loads(attrs["hyperparameters"])["nugget"])
+        geometry = json.loads(attrs.get("anisotropy", "{}"))  # none recorded: isotropic
+        anisotropy = Anisotropy(geometry.get("azimuth_deg", 0.0), geometry.get("ratio", 1.0))
         mean = _mean_from_provenance(str(attrs["mean_function"]), where.folder, prior)
         samples = read_samples(where.samples).samples
     except (InputError, KeyError, ValueError) as exc:
@@ -222,6 +224,7 @@ def rebuild_gp(
     exact = str(attrs.get("method", "exact")).startswith("exact")
     gp = TerrainGP(
         kernel=kernel,
+        anisotropy=anisotropy,
         mean=mean,
         nugget=nugget,
         nugget_bounds="fixed",

@@ -16,7 +16,13 @@ from typing import Any
 
 from terrain.errors import bad_input
 
-__all__ = ["DEFAULT_SCENARIO", "DEFAULT_TOML", "load_scenario", "print_default"]
+__all__ = [
+    "DEFAULT_SCENARIO",
+    "DEFAULT_TOML",
+    "anisotropy_option",
+    "load_scenario",
+    "print_default",
+]
 
 DEFAULT_TOML = """\
 # glacimap scenario: the paper's simulated glacier site (Section IV), seed 0.
@@ -73,6 +79,9 @@ resolution_m = 2.0             # output grid cell (m)
 method = "auto"                # TerrainGP method: auto | exact | tiled
 max_fit_samples = 2000         # hyperparameters on <= this many samples: TerrainGP's default
 n_restarts = 1
+anisotropy = "none"            # ground smoother along one azimuth: "none"; "auto" (chosen by
+                               # evidence, BIC); [azimuth_deg, ratio]: a known grain, e.g. a
+                               # glacier's flow (docs/terrain.md "Anisotropic ground")
 compare_constant_mean = false  # simulation: also fit a constant-mean GP, scored on the truth
 
 [prior]                        # the satellite DEM (prior.tif): RasterMean, a + b * DEM by GLS
@@ -170,6 +179,8 @@ def _check(user: dict[str, Any], ref: dict[str, Any], where: tuple[str, ...]) ->
         if (*where, key) == ("prior", "cells"):  # "auto" or a list: [8, 8], [] (own cells)
             if not (value == "auto" or isinstance(value, list)):
                 raise bad_input(path, value, '"auto" or a list [ny, nx] ([] = own cells)', "")
+        elif (*where, key) == ("reconstruct", "anisotropy"):
+            anisotropy_option(value, path)
         elif (*where, key) == ("prior", "coarse") and value not in ("mesh", "area-means"):
             raise bad_input(path, value, '"mesh" or "area-means"', 'coarse = "mesh"')
         elif isinstance(value, dict):
@@ -181,6 +192,27 @@ def _check(user: dict[str, Any], ref: dict[str, Any], where: tuple[str, ...]) ->
                 ok = False
             if not ok:
                 raise bad_input(path, value, f"a {want.__name__}", f"default is {ref[key]!r}")
+
+
+def anisotropy_option(value: Any, field: str = "reconstruct.anisotropy") -> Any:
+    """``TerrainGP(anisotropy=...)`` from a setting: ``"none"`` -> None, ``"auto"``, or
+    ``[azimuth_deg, ratio]`` (also the text ``"30,2"``) -> :class:`terrain.Anisotropy`."""
+    from terrain import Anisotropy
+
+    if isinstance(value, str) and value.strip().lower() in ("none", "auto"):
+        return None if value.strip().lower() == "none" else "auto"
+    parts = value.split(",") if isinstance(value, str) else value
+    try:
+        if isinstance(parts, list | tuple) and len(parts) == 2:
+            return Anisotropy(float(parts[0]), float(parts[1]))
+    except (TypeError, ValueError):
+        pass
+    raise bad_input(
+        field,
+        value,
+        '"none", "auto" or [azimuth_deg, ratio] with ratio >= 1',
+        "e.g. anisotropy = [30.0, 2.0]: lengths twice as long along azimuth 30 deg",
+    )
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

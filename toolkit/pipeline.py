@@ -28,7 +28,7 @@ from terrain import Grid, TerrainGP, TriangulatedMean, coarse_dem, delaunay_line
 from terrain.atomic import atomic_path, ensure_writable_dir
 from terrain.synthetic import default_site, random_terrain
 
-from .config import load_scenario
+from .config import anisotropy_option, load_scenario
 from .epochs import epoch_truth, survey_scenario, write_change_truth
 from .field_survey import write_field_survey
 from .processing import PROCESS_STAGES, ProcessResult, _json_default, process
@@ -164,6 +164,7 @@ def truth_metrics(truth, res_process, scenario: dict[str, Any]) -> dict[str, dic
             method=rc["method"],
             max_fit_samples=int(rc["max_fit_samples"]),
             n_restarts=int(rc["n_restarts"]),
+            anisotropy=anisotropy_option(rc["anisotropy"]),
             seed=int(scenario["seed"]),
         ).fit(rec.samples)
         maps["gp_constant"] = gp.predict_grid(grid)

@@ -24,6 +24,7 @@ from factorgraph.select import LandmarkSelection, select_landmarks
 from terrain import ElevationSamples, Grid, TerrainGP, cross_validate
 from terrain.errors import InputError, bad_input
 
+from .config import anisotropy_option
 from .error_budget import heldout_along_track, inflate_std
 
 __all__ = [
@@ -189,6 +190,7 @@ def reconstruct_stage(
         method=rc["method"],
         max_fit_samples=int(rc["max_fit_samples"]),
         n_restarts=int(rc["n_restarts"]),
+        anisotropy=anisotropy_option(rc["anisotropy"]),
         seed=seed,
     ).fit(samples)
     if landmark_xy is None:

@@ -94,6 +94,14 @@ def reconstruct(
             "(keys of glacimap run --print-default).",
         ),
     ] = None,
+    anisotropy: Annotated[
+        str | None,
+        typer.Option(
+            "--anisotropy",
+            help='Ground smoother along one azimuth: "none" (default), "auto" (chosen by '
+            'evidence) or "AZIMUTH,RATIO" (degrees from grid north; e.g. a glacier\'s flow).',
+        ),
+    ] = None,
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
@@ -117,8 +125,11 @@ def reconstruct(
         if demo:
             _run_demo(out_dir, seed, n_samples, resolution)
             return
+        overrides = {"seed": seed}
+        if anisotropy is not None:  # checked by the scenario's own rule (config.py)
+            overrides["reconstruct"] = {"anisotropy": anisotropy}
         _reconstruct_csv(
-            samples, out_dir, seed, resolution, crs, prior, bounds, like, checkpoints, config
+            samples, out_dir, overrides, resolution, crs, prior, bounds, like, checkpoints, config
         )
 
 
@@ -135,7 +146,7 @@ def _run_demo(out_dir: Path, seed: int, n_samples: int, resolution: float) -> No
     console.print(f"wrote {png} and {out_dir / 'demo_summary.json'}")
 
 
-def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, like, cps, config):
+def _reconstruct_csv(samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg):
     import warnings
 
     from terrain.errors import DegenerateFitWarning
@@ -148,7 +159,8 @@ def _reconstruct_csv(samples, out_dir, seed, resolution, crs, prior, bounds, lik
     from ..samples_io import grid_like, read_samples
     from ..stages import certify_stage, map_grid, reconstruct_stage
 
-    settings = load_scenario(config, {"seed": seed})
+    settings = load_scenario(cfg, overrides)
+    seed = int(overrides["seed"])
     table = read_samples(samples, crs)
     if table.note:
         console.print(f"[yellow]note:[/] {escape(str(table.note))}")
