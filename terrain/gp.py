@@ -243,7 +243,7 @@ class TerrainGP(HyperparameterMixin):
             self.fit_index_ = np.sort(
                 rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
             )
-        widest = largest_gap(X)  # the survey's widest gap, m (tiling, near ties)
+        widest = largest_gap(self.anisotropy_.apply(samples.xy))  # the widest gap, m
         spacing = median_spacing(X) if samples.n < 200_000 else None
         if self._searches_kernel:
             idx = self.fit_index_
@@ -254,7 +254,7 @@ class TerrainGP(HyperparameterMixin):
             spacing = median_spacing(X) if spacing is None else spacing
             if self.anisotropy == "auto":  # the search then runs in the kernel's coordinates
                 X, windows, widest, spacing = self._fit_geometry(
-                    samples, resid, windows, nugget, spacing, rng.spawn(1)[0]
+                    samples, resid, windows, nugget, (widest, spacing), rng.spawn(1)[0]
                 )
             choice = select_kernel(
                 X[idx],

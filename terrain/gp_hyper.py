@@ -24,14 +24,16 @@ __all__ = ["HyperparameterMixin"]
 class HyperparameterMixin:
     """Eq 9 and its maximization for a :class:`~terrain.gp.TerrainGP` with a given kernel."""
 
-    def _fit_geometry(self, samples, resid, windows, nugget, spacing, rng):
+    def _fit_geometry(self, samples, resid, windows, nugget, gaps, rng):
         """Choose the kernel's geometric anisotropy on the fit subset
         (:func:`terrain.anisotropy.select_anisotropy`, ``rng`` its own child stream) and,
         when one is kept, move the samples and the windows into its coordinates. Returns
-        ``(X, windows, widest_gap, spacing)`` in the kernel's coordinates, m."""
+        ``(X, windows, widest_gap, spacing)`` in the kernel's coordinates, m (``gaps``: the
+        isotropic ``(widest_gap, spacing)``, returned as they are when none is kept)."""
         from .kernel_search import median_spacing
 
         X, idx = self.X_train_, self.fit_index_
+        spacing = gaps[1]
         geometry, self.anisotropy_evidence_ = select_anisotropy(
             X[idx],
             resid[idx],
@@ -43,7 +45,7 @@ class HyperparameterMixin:
             rng=rng,
         )
         if geometry.isotropic:
-            return X, windows, largest_gap(X), spacing
+            return X, windows, *gaps
         self.anisotropy_ = geometry
         X = self.X_train_ = self._kernel_xy(samples.xy)
         windows = None if windows is None else windows.transformed(geometry.matrix())
