@@ -117,6 +117,11 @@ class Anisotropy:
         scale = (1.0 / math.sqrt(r), math.sqrt(r)) if area_preserving else (1.0 / r, 1.0)
         return np.diag(scale) @ rot
 
+    @property
+    def kernel_matrix(self) -> np.ndarray | None:
+        """:meth:`matrix` of the kernel's space, or None when isotropic (no transform)."""
+        return None if self.isotropic else self.matrix()
+
     def apply(self, xy: np.ndarray, area_preserving: bool = False) -> np.ndarray:
         """Coordinates (n, 2), m, in the kernel's space (the input itself when isotropic)."""
         if self.isotropic:

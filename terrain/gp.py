@@ -243,7 +243,7 @@ class TerrainGP(HyperparameterMixin):
             self.fit_index_ = np.sort(
                 rng.choice(samples.n, size=int(self.max_fit_samples), replace=False)
             )
-        widest = largest_gap(self.anisotropy_.apply(samples.xy))  # the widest gap, m
+        widest = largest_gap(X, matrix=self.anisotropy_.kernel_matrix)  # widest gap, m
         spacing = median_spacing(X) if samples.n < 200_000 else None
         if self._searches_kernel:
             idx = self.fit_index_
@@ -290,7 +290,7 @@ class TerrainGP(HyperparameterMixin):
             kernel = kernel if part is None else kernel + part
         self.microscale_ = part
         self.kernel_, self.nugget_ = kernel, nugget
-        tiles = self.tiles or default_tiles(kernel, X, widest)
+        tiles = self.tiles or default_tiles(kernel, X, widest, self.anisotropy_.kernel_matrix)
         self.tiles_ = tiles
         long_part = long_scale_part(kernel, tiles.halo)
         # A long-scale part is held by the tiles where data lie within a halo of everywhere.

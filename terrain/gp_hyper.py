@@ -13,6 +13,7 @@ from threadpoolctl import threadpool_limits
 
 from .anisotropy import select_anisotropy
 from .errors import NumericalError, bad_input
+from .kernel_search import median_spacing
 from .kernels import Kernel, SquaredExponential
 from .likelihood import gaussian_lml
 from .linalg import one_blas_thread
@@ -30,8 +31,6 @@ class HyperparameterMixin:
         when one is kept, move the samples and the windows into its coordinates. Returns
         ``(X, windows, widest_gap, spacing)`` in the kernel's coordinates, m (``gaps``: the
         isotropic ``(widest_gap, spacing)``, returned as they are when none is kept)."""
-        from .kernel_search import median_spacing
-
         X, idx = self.X_train_, self.fit_index_
         spacing = gaps[1]
         geometry, self.anisotropy_evidence_ = select_anisotropy(
@@ -50,7 +49,7 @@ class HyperparameterMixin:
         X = self.X_train_ = self._kernel_xy(samples.xy)
         windows = None if windows is None else windows.transformed(geometry.matrix())
         self.window_plan_ = windows
-        return X, windows, largest_gap(X), median_spacing(X)
+        return X, windows, largest_gap(X, matrix=geometry.matrix()), median_spacing(X)
 
     # -- hyperparameter vector: log([kernel params..., nugget]) -----------------------------
     def _theta(self, kernel: Kernel, nugget: float) -> np.ndarray:

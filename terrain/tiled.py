@@ -31,10 +31,9 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import minimize_scalar
-from scipy.spatial import cKDTree
 
 from .errors import TilingWarning, bad_input
-from .heldout_design import default_targets
+from .gaps import largest_gap, sample_density
 from .linalg import cholesky_jitter
 from .microscale import without_microscale
 from .nogil_lapack import cho_solve_lower, solve_lower, symmetric_eigen
@@ -143,14 +142,6 @@ class TileSpec:
         return cls(tile=tile, blend=tile / 8.0, halo=float(np.clip(3.0 * ls, 10.0, MAX_HALO)))
 
 
-def sample_density(xy: np.ndarray) -> float:
-    """Samples per m^2 over the bounding box of ``xy`` (n, 2), m; ``nan`` when the box has
-    no area (one sample, or all on a line along x or y)."""
-    xy = np.asarray(xy, dtype=float)
-    area = float(np.ptp(xy[:, 0]) * np.ptp(xy[:, 1])) if len(xy) else 0.0
-    return len(xy) / area if area > 0 else float("nan")
-
-
 def long_scale_part(kernel, halo: float):
     """The kernel part (if any) whose length scale exceeds ``halo`` while its variance is at
     least a tenth of the shortest-scale part's: what a tiled GP cannot represent. A
@@ -184,17 +175,20 @@ def halo_for_gaps(spec: TileSpec, kernel, widest: float) -> TileSpec:
     return replace(spec, halo=halo) if widest <= halo <= MAX_HALO else spec
 
 
-def default_tiles(kernel, xy: np.ndarray, widest: float | None = None) -> TileSpec:
+def default_tiles(
+    kernel, xy: np.ndarray, widest: float | None = None, matrix: np.ndarray | None = None
+) -> TileSpec:
     """The tiles a fit builds for ``kernel`` on samples at ``xy`` (n, 2), m, when the user
     gives none: sized by the shortest length scale and the samples' mean density
     (:meth:`TileSpec.for_lengthscale`), the halo grown for a long-scale part
-    (:func:`halo_for_gaps`). ``widest``: the samples' :func:`largest_gap` when known."""
-    widest = largest_gap(xy) if widest is None else widest
-    spec = TileSpec.for_lengthscale(shortest_lengthscale(kernel), sample_density(xy))
+    (:func:`halo_for_gaps`). ``widest``: the samples' :func:`largest_gap` when known;
+    ``matrix``: ``xy`` are in an anisotropy's kernel space (:func:`sample_density`)."""
+    widest = largest_gap(xy, matrix=matrix) if widest is None else widest
+    spec = TileSpec.for_lengthscale(shortest_lengthscale(kernel), sample_density(xy, matrix))
     return halo_for_gaps(spec, kernel, widest)
 
 
-def tiles_reaching_gaps(kernel, xy: np.ndarray) -> TileSpec:
+def tiles_reaching_gaps(kernel, xy: np.ndarray, matrix: np.ndarray | None = None) -> TileSpec:
     """:func:`default_tiles` whose halo also reaches across the samples' widest gap when a
     long-scale kernel part needs data there.
 
@@ -202,22 +196,14 @@ def tiles_reaching_gaps(kernel, xy: np.ndarray) -> TileSpec:
     gaps that the map does not have, 0.3-2.3 m wider than the map's halo on a real DEM
     (rm, 80-node window, 3,000 samples), and each fold's fit warned that *the map* would
     revert to its prior mean. A tile's data are capped at ``max_points`` nearest samples,
-    so the longer halo costs nothing where data are dense.
+    so the longer halo costs nothing where data are dense. ``matrix``: as
+    :func:`default_tiles`.
     """
-    widest = largest_gap(xy)
-    spec = default_tiles(kernel, xy, widest)
+    widest = largest_gap(xy, matrix=matrix)
+    spec = default_tiles(kernel, xy, widest, matrix)
     if long_scale_part(kernel, spec.halo) is not None and widest > spec.halo:
         spec = replace(spec, halo=widest)
     return spec
-
-
-def largest_gap(xy: np.ndarray, n_side: int = 100) -> float:
-    """Largest distance from a point of the samples' bounding box to its nearest sample, m:
-    the widest gap in the survey, measured on an ``n_side`` x ``n_side`` lattice of the box
-    (:func:`terrain.heldout_design.default_targets`). A tile sees data within its halo, so a
-    long-scale kernel part is held by the data (no reversion to the prior mean inside the
-    survey) when this is at most the halo."""
-    return float(cKDTree(xy).query(default_targets(xy, n_side))[0].max())
 
 
 def shortest_lengthscale(kernel) -> float:

@@ -417,8 +417,9 @@ def cross_validate(
         if overrides and tiled and getattr(estimator, "tiles", None) is None:
             # The map's kernel on tiles that reach across the fold's own held-out gaps: the
             # check is of the map, which has no such gaps (docs/terrain.md "Folds' tiles").
-            fold_xy = reference.anisotropy_.apply(samples.xy[~test])  # the kernel's space
-            fold_tiles = tiles_reaching_gaps(reference.kernel_, fold_xy)
+            geometry = reference.anisotropy_  # the fold's samples in the kernel's space
+            fold_xy = geometry.apply(samples.xy[~test])
+            fold_tiles = tiles_reaching_gaps(reference.kernel_, fold_xy, geometry.kernel_matrix)
             fold_overrides = {**overrides, "tiles": fold_tiles}
         model = _clone(estimator, **fold_overrides).fit(samples.subset(~test))
         m, s = model.predict(samples.xy[test], return_std=True)

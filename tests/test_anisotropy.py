@@ -155,3 +155,22 @@ def test_volume_integral_in_the_kernels_space():
     ref = w @ k(q) @ w - v @ A @ v + R @ np.linalg.inv(H.T @ A @ H) @ R
     got = gp_integral(gp, grid, w.reshape(grid.shape))
     assert got["posterior_var_m6"] == pytest.approx(float(ref), rel=1e-5)
+
+
+def test_gaps_and_density_are_the_surveys_in_the_kernels_space():
+    """A rotated survey's bounding box has empty corners: measured in the kernel's space
+    without the matrix they read as a 2-3x wider gap and a lower density. With it, a pure
+    rotation gives the metric values, and a compression scales them by hand."""
+    from terrain.tiled import largest_gap, sample_density
+
+    xy = np.random.default_rng(0).uniform(0.0, 300.0, (3000, 2))
+    rot = Anisotropy(30.0, 2.0).matrix()
+    rot = rot / np.array([[0.5], [1.0]])  # rows back to unit length: the rotation alone
+    moved = xy @ rot.T
+    assert largest_gap(moved, matrix=rot) == pytest.approx(largest_gap(xy), rel=1e-9)
+    assert largest_gap(moved) > 2.0 * largest_gap(xy)  # the corners
+    assert sample_density(moved, rot) == pytest.approx(sample_density(xy), rel=1e-9)
+    assert sample_density(moved) < 0.8 * sample_density(xy)
+    # compressed along east by 2: area halves, density doubles
+    a = Anisotropy(90.0, 2.0)
+    assert sample_density(a.apply(xy), a.matrix()) == pytest.approx(2 * sample_density(xy))
