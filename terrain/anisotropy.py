@@ -33,7 +33,7 @@ order.
 Not the default (``TerrainGP(anisotropy=None)``). It recovers a known grain (ratio 3 at 60
 deg: 61.9 deg, 3.07; RMSE -39 %) and helps bei surveyed along its smooth axis (RMSE -6 %,
 68 % coverage 65.2 -> 68.2), but on the real-DEM benchmark at 3,000 samples the evidence
-kept grains on 11 of 22 rows and six maps lost 2-4 %: the fit subset's pairs lie along the
+kept grains on 11 of 22 rows and four maps lost 3-5 %: the fit subset's pairs lie along the
 tracks and across one swath, and a grain learnt there is extrapolated across the gaps
 where the map's errors are (the exact Eq 9 agrees with the Vecchia one; docs/terrain.md
 "Anisotropic ground").

@@ -115,7 +115,7 @@ class TerrainGP(HyperparameterMixin):
         Ground smoother along one azimuth (:mod:`terrain.anisotropy`): ``None`` (default)
         isotropic; an :class:`Anisotropy` (e.g. a glacier's flow) used in every fit;
         ``"auto"`` chosen with a kernel search by BIC. Not the default: on real DEMs surveyed
-        along tracks it made 6 of 22 maps 2-4 % worse (docs/terrain.md "Anisotropic ground").
+        along tracks it made 4 of 22 maps 3-5 % worse (docs/terrain.md "Anisotropic ground").
 
     Attributes
     ----------
