@@ -21,6 +21,7 @@ from terrain.sampling import sample_dem
 from toolkit.change_inputs import locate_product, rebuild_gp
 from toolkit.cli import app
 from toolkit.config import anisotropy_option, load_scenario
+from toolkit.stages import certify_stage
 
 runner = CliRunner()
 CRS = "EPSG:32608"
@@ -54,6 +55,7 @@ def test_cli_grain_is_fitted_and_recorded(samples_csv, tmp_path):
     res = runner.invoke(app, ["reconstruct", str(samples_csv), "--crs", CRS, "--resolution",
                               "20", "--anisotropy", "30,2", "--out", str(out)])  # fmt: skip
     assert res.exit_code == 0, res.output
+    assert "grain" in res.output and "azimuth 30.0" in " ".join(res.output.split())
     attrs = xr.open_dataset(out / "product.nc").attrs
     assert json.loads(attrs["anisotropy"])["azimuth_deg"] == pytest.approx(30.0)
     assert json.loads(attrs["anisotropy"])["ratio"] == pytest.approx(2.0)
@@ -70,8 +72,12 @@ def test_cli_bad_grain_is_refused_before_anything_is_written(samples_csv, tmp_pa
 
 def test_change_gp_route_rebuilds_an_anisotropic_product(tmp_path):
     over = {"reconstruct": {"max_fit_samples": 300, "anisotropy": [60.0, 1.5]}}
-    d, _, _, rec_b, _, _ = _make_epochs(tmp_path, load_scenario(overrides=over))
+    settings = load_scenario(overrides=over)
+    d, _, _, rec_b, _, _ = _make_epochs(tmp_path, settings)
     assert rec_b.gp.anisotropy_ == Anisotropy(60.0, 1.5)
+    # the certificate states the grain with the kernel
+    cert = certify_stage(rec_b, None, settings, 0)
+    assert cert["reconstruction"]["anisotropy"]["ratio"] == pytest.approx(1.5)
     ds = xr.open_dataset(d / "before" / "product.nc").load()
     gp, note = rebuild_gp(ds, locate_product(d / "before", None, "BEFORE"))
     assert gp is not None, note

@@ -316,6 +316,7 @@ def certify_stage(
     cert["reconstruction"] = {
         "kernel": product.attrs.get("kernel"),
         "kernel_selection": json.loads(product.attrs.get("kernel_selection", "[]")),
+        "anisotropy": json.loads(product.attrs.get("anisotropy", "{}")),
         "mean_function": product.attrs.get("mean_function"),
         "mean_coefficients": json.loads(product.attrs.get("mean_coefficients", "{}")),
         "predict_route": product.attrs.get("predict_route"),

@@ -242,6 +242,8 @@ def _reconstruct_csv(samples, out_dir, overrides, resolution, crs, prior, bounds
     table_out.add_row("samples", str(data.n))
     table_out.add_row("grid", f"{grid.ny} x {grid.nx} cells of {grid.resolution[0]:g} m")
     table_out.add_row("kernel (by evidence)", str(rec.product.attrs.get("kernel")))
+    if not rec.gp.anisotropy_.isotropic:  # a grain given or chosen (--anisotropy)
+        table_out.add_row("ground's grain", rec.gp.anisotropy_.describe())
     table_out.add_row("mean", str(rec.product.attrs.get("mean_function")))
     table_out.add_row("cells reverting to the prior", f"{100 * reverted:.1f} %")
     if cert is not None:
