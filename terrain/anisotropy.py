@@ -176,7 +176,7 @@ def _lml(search: Any, kernel: Any, nugget: float) -> float | None:
 def choose_anisotropy(
     search_at: Any, kernel: Any, nugget: float, n: int, pool: Any = None
 ) -> tuple[Anisotropy, Any, float, dict[str, Any]]:
-    """The geometry kept for ``kernel`` (the isotropic winner) by the profile and the BIC.
+    """The geometry kept for ``kernel`` (an isotropic fit: the pilot) by the profile and BIC.
 
     Parameters
     ----------
@@ -184,7 +184,7 @@ def choose_anisotropy(
         ``search_at(matrix) -> search``: a kernel search (``lml``, ``optimize``) on the fit
         subset in the coordinates ``X @ matrix.T``, every one with the same random order.
     kernel, nugget
-        The isotropic winner and its nugget (m^2).
+        The isotropic fit and its nugget (m^2).
     n : int
         Fit-subset size (the BIC's penalty is ``2 ln n`` for the two parameters).
     pool : concurrent.futures.Executor, optional
@@ -269,7 +269,8 @@ def select_anisotropy(
     profiled over azimuths and ratios, kept on strong evidence
     (:func:`terrain.anisotropy.choose_anisotropy`).
 
-    Parameters are those of :func:`select_kernel` (``X`` centred, m); ``rng`` orders the one
+    Parameters are those of :func:`terrain.kernel_search.select_kernel` (``X`` centred, m;
+    ``m`` the Vecchia conditioning-set size, ``workers`` the threads); ``rng`` orders the one
     Vecchia plan order every geometry shares (pass a child stream: the caller's stream is
     not drawn from). Returns the geometry and its record (``pilot`` kernel repr added).
     """
