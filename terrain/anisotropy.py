@@ -60,7 +60,6 @@ __all__ = [
     "Anisotropy",
     "as_anisotropy",
     "choose_anisotropy",
-    "scale_lengths",
     "select_anisotropy",
 ]
 
@@ -155,17 +154,6 @@ def as_anisotropy(value: Any) -> Anisotropy | str | None:
     )
 
 
-def scale_lengths(kernel: Any, factor: float) -> Any:
-    """``kernel`` with every part's length scale multiplied by ``factor`` (clipped to its
-    bounds)."""
-    theta = np.array(kernel.theta, dtype=float)
-    for i, name in enumerate(kernel.param_names):
-        if "lengthscale" in name:
-            theta[i] += math.log(factor)
-    theta = np.clip(theta, kernel.bounds[:, 0], kernel.bounds[:, 1])
-    return kernel.with_theta(theta)
-
-
 def _lml(search: Any, kernel: Any, nugget: float) -> float | None:
     try:
         return float(search.lml(kernel, nugget))
@@ -175,7 +163,7 @@ def _lml(search: Any, kernel: Any, nugget: float) -> float | None:
 
 def choose_anisotropy(
     search_at: Any, kernel: Any, nugget: float, n: int, pool: Any = None
-) -> tuple[Anisotropy, Any, float, dict[str, Any]]:
+) -> tuple[Anisotropy, dict[str, Any]]:
     """The geometry kept for ``kernel`` (an isotropic fit: the pilot) by the profile and BIC.
 
     Parameters
@@ -193,11 +181,8 @@ def choose_anisotropy(
     Returns
     -------
     anisotropy : Anisotropy
-        The kept geometry (isotropic unless the evidence is strong).
-    kernel, nugget
-        The kernel refitted in the kept geometry's compressed coordinates
-        (:meth:`Anisotropy.matrix`, ``area_preserving=False``), and its nugget; the inputs
-        when isotropic.
+        The kept geometry (isotropic unless the evidence is strong); the kernel search then
+        fits its kernel in that geometry's coordinates.
     record : dict
         ``azimuth_deg, ratio`` of the profile's best, ``lml_isotropic``, ``lml_anisotropic``
         (nats, both refitted under the common order), ``delta_bic`` (isotropic minus
@@ -218,7 +203,7 @@ def choose_anisotropy(
     found = best_of(geoms, None)
     record: dict[str, Any] = {"kept": False}
     if found is None:
-        return Anisotropy(), kernel, nugget, record
+        return Anisotropy(), record
     # then around the best, the steps halved each round (azimuth; ratio on a log scale)
     step_az, step_r = AZIMUTHS[1] / 2.0, math.sqrt(RATIOS[1] / RATIOS[0])
     for _ in range(REFINE_ROUNDS):
@@ -233,22 +218,21 @@ def choose_anisotropy(
         step_az, step_r = step_az / 2.0, math.sqrt(step_r)
     best = found[1]
 
-    def refit(geom: Anisotropy) -> tuple[Any, float, float] | None:
+    def refit(geom: Anisotropy) -> float | None:  # the refitted likelihood, nats
         fit = search_at(geom.matrix(area_preserving=True)).optimize(kernel, nugget)
-        return None if fit is None else fit[:3]
+        return None if fit is None else fit[2]
 
     pair = list(pool.map(refit, (Anisotropy(), best)) if pool else map(refit, (Anisotropy(), best)))
     iso, aniso = pair
     record.update(best.to_dict())
     if iso is None or aniso is None:
-        return Anisotropy(), kernel, nugget, record
-    delta = 2.0 * (aniso[2] - iso[2]) - 2.0 * math.log(n)
-    record.update(lml_isotropic=iso[2], lml_anisotropic=aniso[2], delta_bic=delta)
+        return Anisotropy(), record
+    delta = 2.0 * (aniso - iso) - 2.0 * math.log(n)
+    record.update(lml_isotropic=iso, lml_anisotropic=aniso, delta_bic=delta)
     if delta < MIN_DELTA_BIC:
-        return Anisotropy(), kernel, nugget, record
+        return Anisotropy(), record
     record["kept"] = True
-    # area-preserving lengths l are l / sqrt(r) in the compressed coordinates (same model)
-    return best, scale_lengths(aniso[0], 1.0 / math.sqrt(best.ratio)), aniso[1], record
+    return best, record
 
 
 def select_anisotropy(
@@ -286,6 +270,6 @@ def select_anisotropy(
         return Anisotropy(), {"kept": False, "pilot": None}
     workers = max(1, workers if workers is not None else os.cpu_count() or 1)
     with threadpool_limits(1), ThreadPoolExecutor(max_workers=workers) as pool:
-        geometry, _, _, record = choose_anisotropy(search_at, pilot[0], pilot[1], r.size, pool)
+        geometry, record = choose_anisotropy(search_at, pilot[0], pilot[1], r.size, pool)
     record["pilot"] = repr(pilot[0])
     return geometry, record

@@ -24,7 +24,6 @@ from terrain import (
     TerrainGP,
     cross_validate,
 )
-from terrain.anisotropy import scale_lengths
 from terrain.volume import gp_integral, outline_weights
 
 W0, S0 = 500_000.0, 6_800_000.0
@@ -47,13 +46,6 @@ def test_matrix_by_hand():
     xy = np.array([[1.0, 2.0]])
     assert iso.isotropic and iso.apply(xy) is xy
     assert "isotropic" in iso.describe() and "azimuth 45.0" in b.describe()
-
-
-def test_scale_lengths_every_part():
-    k = Matern(2.0, 10.0, nu=2.5) + SquaredExponential(1.0, 40.0)
-    s = scale_lengths(k, 0.5)
-    assert [float(p.lengths[0]) for p in s.parts] == pytest.approx([5.0, 20.0])
-    assert [p.variance for p in s.parts] == pytest.approx([2.0, 1.0])
 
 
 def test_bad_input_names_the_field():
