@@ -9,6 +9,7 @@
     python benchmarks/real_terrain.py --noise-sd 0.05         # another signal-to-noise ratio
     python benchmarks/real_terrain.py --survey west-half      # east half on the prior alone
     python benchmarks/real_terrain.py --scattered 0.02        # the rover kept to its tracks
+    python benchmarks/real_terrain.py --sites my_dem.tif --sizes 3000 50000   # a DEM of yours
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
@@ -96,14 +97,34 @@ HELDOUT_POINTS = 3.0  # held-out coverage within this many points of the truth's
 
 
 def parse_site(spec: str) -> dict[str, Any]:
-    """``name[:window[:nodes]]`` -> site dict (window 0, 40 nodes by default)."""
+    """``name[:window[:nodes]]`` -> site dict (window 0, 40 nodes by default).
+
+    ``name`` is one of ``real_dems.NAMES`` or the path of a DEM file (any raster GDAL reads),
+    labelled by its stem: ``--sites ~/dems/my_glacier.tif:0:60``.
+    """
+    import real_dems
+
     parts = spec.split(":")
+    if Path(spec).is_file():  # a path that itself holds a colon
+        parts = [spec]
     if len(parts) > 3 or not parts[0]:
         raise argparse.ArgumentTypeError(f"site: expected name[:window[:nodes]], got {spec!r}")
-    window = int(parts[1]) if len(parts) > 1 else 0
-    nodes = int(parts[2]) if len(parts) > 2 else 40
-    label = parts[0] if (window, nodes) == (0, 40) else f"{parts[0]}:{window}:{nodes}"
-    return {"name": parts[0], "window": window, "nodes": nodes, "label": label}
+    name = parts[0]
+    if name not in real_dems.NAMES and not Path(name).is_file():
+        raise argparse.ArgumentTypeError(
+            f"site: {name!r} is neither a real DEM of scripts/real_dems.py "
+            f"({', '.join(real_dems.NAMES)}) nor a DEM file"
+        )
+    try:
+        window = int(parts[1]) if len(parts) > 1 else 0
+        nodes = int(parts[2]) if len(parts) > 2 else 40
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"site: window and nodes are integers, got {spec!r}; e.g. olinda:1:60"
+        ) from None
+    short = name if name in real_dems.NAMES else Path(name).stem
+    label = short if (window, nodes) == (0, 40) else f"{short}:{window}:{nodes}"
+    return {"name": name, "window": window, "nodes": nodes, "label": label}
 
 
 def _data(site: dict, n: int):
@@ -707,7 +728,7 @@ def main(argv: list[str] | None = None) -> int:
         }
 
     try:
-        if any(s["name"] not in real_dems.MATPLOTLIB for s in sites):
+        if any(s["name"] in real_dems.FILES for s in sites):  # not matplotlib's, not a file
             real_dems.fetch()
         for s in sites:
             real_dems.glacier_site(

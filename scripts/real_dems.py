@@ -48,6 +48,8 @@ a glacier-sized square (default 600 m at 2 m) with a bicubic spline through its 
 rescales the elevations to a given relief: the real DEM's roughness spectrum, down to the
 node spacing, on the scale a rover surveys. :func:`track_samples` then samples it the way a
 rover does: landmarks beside parallel tracks plus scattered points, with Gaussian noise.
+Any DEM file GDAL reads can be the shape donor instead of a named one (:func:`load_file`;
+``glacier_site("my_dem.tif")``): the same protocol on ground these DEMs never showed.
 
 Usage: ``python scripts/real_dems.py`` fetches the files and prints what it has.
 """
@@ -208,20 +210,16 @@ def load(name: str) -> xr.DataArray:
     ``gorillas`` is in UTM 32N, ``clm`` in spatstat's km plane read as local metres.
     """
     if name not in NAMES:
-        raise ValueError(f"name: expected one of {NAMES}, got {name!r}")
+        if Path(name).is_file():
+            return load_file(name)
+        raise ValueError(
+            f"name: expected one of {NAMES} or the path of a DEM file, got {name!r} (no such file)"
+        )
     if name in MATPLOTLIB:
         return _load_matplotlib(name)
     path = fetch() / FILES[name]
     if name in ("olinda", "lux"):
-        import rasterio
-
-        with rasterio.open(path) as ds:
-            z = ds.read(1, masked=True).astype(float).filled(np.nan)
-            t = ds.transform
-            crs = ds.crs.to_wkt()
-        x = t.c + t.a * (np.arange(z.shape[1]) + 0.5)
-        y = t.f + t.e * (np.arange(z.shape[0]) + 0.5)
-        return _array(z, x, y, crs, name)
+        return _read_raster(path, f"real DEM {name} ({FILES[name]})")
     if name in ("rm", "prism"):
         d = _read_rda(path, "RMelevation" if name == "rm" else "PRISMelevation")
         z = np.asarray(d["z"], float).T[::-1]  # R stores z[x, y] with y ascending
@@ -253,6 +251,49 @@ def load(name: str) -> xr.DataArray:
     xx, yy = np.meshgrid(x, y)
     z = griddata(loc, zpts, (xx, yy), method="cubic")
     return _array(z, x, y, LOCAL_TM, name)
+
+
+def load_file(path: str | Path) -> xr.DataArray:
+    """A DEM of the user's own: any single-band raster GDAL reads, as :func:`load` returns.
+
+    Parameters
+    ----------
+    path : str or Path
+        A GeoTIFF, NetCDF, Arc/Info ASCII grid... Rows stored south -> north are flipped
+        north-up; nodata cells become NaN (windows avoid them); a file without a CRS is
+        labelled with the local transverse Mercator frame (a site takes only the DEM's shape).
+
+    Returns
+    -------
+    xarray.DataArray, dims (y, x)
+        Elevations at cell centres, in the file's own units and CRS.
+    """
+    return _read_raster(Path(path), f"DEM file {Path(path).name}")
+
+
+def _read_raster(path: Path, source: str) -> xr.DataArray:
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        t = ds.transform
+        if t.b != 0.0 or t.d != 0.0:
+            raise ValueError(
+                f"{path}: the raster is rotated (geotransform {tuple(t)[:6]}); warp it "
+                "north-up first, e.g. gdalwarp SRC DST"
+            )
+        z = ds.read(1, masked=True).astype(float).filled(np.nan)
+        crs = ds.crs.to_wkt() if ds.crs else LOCAL_TM
+    x = t.c + t.a * (np.arange(z.shape[1]) + 0.5)
+    y = t.f + t.e * (np.arange(z.shape[0]) + 0.5)
+    if t.e > 0:  # rows stored south -> north
+        z, y = z[::-1], y[::-1]
+    return xr.DataArray(
+        z,
+        coords={"y": y, "x": x},
+        dims=("y", "x"),
+        name="elevation",
+        attrs={"units": "m", "crs_wkt": crs, "source": source},
+    )
 
 
 def _load_matplotlib(name: str) -> xr.DataArray:
@@ -327,7 +368,7 @@ def glacier_site(
     Parameters
     ----------
     name : str
-        One of :data:`NAMES`.
+        One of :data:`NAMES`, or the path of a DEM file of one's own (:func:`load_file`).
     size_m, resolution : float
         Side of the square site and its cell size, m.
     relief_m : float
@@ -350,7 +391,10 @@ def glacier_site(
     z = np.asarray(dem.values, float)
     corners = _windows(z, nodes)
     if window >= len(corners):
-        raise ValueError(f"window: {name} has {len(corners)} windows of {nodes} nodes")
+        raise ValueError(
+            f"window: {name} has {len(corners)} windows of {nodes} nodes without nodata, "
+            f"window {window} asked for; ask for a lower window or fewer nodes"
+        )
     i, j = corners[window]
     w = z[i : i + nodes, j : j + nodes]
     t = np.linspace(0.0, size_m, nodes)

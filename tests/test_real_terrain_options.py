@@ -133,3 +133,57 @@ def test_the_rescaled_verdict_needs_both_levels_in_band(real_terrain):
     assert real_terrain._rescaled_verdict({**row, "cov95_rescaled": 91.0})["rescaled_ok"] == "MISS"
     assert real_terrain._rescaled_verdict({**row, "cov68_rescaled": 77.0})["rescaled_ok"] == "MISS"
     assert real_terrain._rescaled_verdict({}) == {}
+
+
+def _write_dem(path: Path, da, *, south_up: bool = False, nodata_cells: int = 0) -> Path:
+    """``da`` (north-up, cell centres) as a GeoTIFF with rasterio; rows stored south -> north
+    (a positive y pixel size) when ``south_up``; the first ``nodata_cells`` cells of the last
+    row set to nodata."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    z = np.asarray(da.values, float).copy()
+    dx = float(da.x[1] - da.x[0])
+    dy = float(da.y[0] - da.y[1])
+    west, north = float(da.x[0]) - dx / 2, float(da.y[0]) + dy / 2
+    z[-1, :nodata_cells] = -9999.0
+    if south_up:
+        z, t = z[::-1], Affine(dx, 0.0, west, 0.0, dy, north - dy * z.shape[0])
+    else:
+        t = Affine(dx, 0.0, west, 0.0, -dy, north)
+    profile = dict(driver="GTiff", width=z.shape[1], height=z.shape[0], count=1)
+    with rasterio.open(path, "w", **profile, dtype="float64", transform=t, nodata=-9999.0) as ds:
+        ds.write(z, 1)
+    return path
+
+
+@pytest.mark.parametrize("south_up", [False, True])
+def test_a_dem_file_of_ones_own_makes_the_same_site_as_the_named_dem(
+    real_terrain, tmp_path, south_up
+):
+    # Reference: the named DEM (matplotlib's jacksboro) written to a GeoTIFF and read back
+    # by rasterio gives the same site, bit for bit, whichever way its rows are stored; the
+    # nodata cells of the file's southern row are NaN and the windows keep clear of them.
+    import real_dems
+
+    dem = real_dems.load("jacksboro")
+    path = _write_dem(tmp_path / "my dem.tif", dem, south_up=south_up, nodata_cells=5)
+    read = real_dems.load_file(path)
+    np.testing.assert_allclose(read.y.values, dem.y.values, rtol=0, atol=1e-9)  # degrees
+    assert np.isnan(read.values[-1, :5]).all()
+    np.testing.assert_array_equal(read.values[:-1], dem.values[:-1])
+    site = real_terrain.parse_site(f"{path}:1:30")
+    assert (site["label"], site["window"], site["nodes"]) == ("my dem:1:30", 1, 30)
+    mine = real_dems.glacier_site(site["name"], window=1, nodes=30)
+    named = real_dems.glacier_site("jacksboro", window=1, nodes=30)
+    np.testing.assert_array_equal(mine.values, named.values)
+    assert "my dem.tif" in mine.attrs["source"]
+
+
+def test_a_site_that_is_no_dem_is_refused_by_name(real_terrain, tmp_path):
+    import argparse
+
+    with pytest.raises(argparse.ArgumentTypeError, match="neither a real DEM"):
+        real_terrain.parse_site(str(tmp_path / "missing.tif"))
+    with pytest.raises(argparse.ArgumentTypeError, match="integers"):
+        real_terrain.parse_site("olinda:first")
