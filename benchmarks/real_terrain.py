@@ -10,6 +10,7 @@
     python benchmarks/real_terrain.py --survey west-half      # east half on the prior alone
     python benchmarks/real_terrain.py --scattered 0.02        # the rover kept to its tracks
     python benchmarks/real_terrain.py --sites my_dem.tif --sizes 3000 50000   # a DEM of yours
+    python benchmarks/real_terrain.py --feature scarp         # a 6 m scarp across the tracks
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
@@ -61,7 +62,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "scripts"))
 from _harness import table, write_json  # noqa: E402
-from real_dems import NAMES  # noqa: E402
+from real_dems import FEATURES, NAMES  # noqa: E402
 
 SITES = NAMES  # every real DEM of scripts/real_dems.py
 SIZES = (3000, 50_000)
@@ -138,6 +139,7 @@ def _data(site: dict, n: int):
         window=site["window"],
         resampling=site.get("resampling", "cubic"),
     )
+    truth = real_dems.add_feature(truth, site.get("feature", "none"))
     samples = real_dems.track_samples(
         truth,
         n,
@@ -676,6 +678,14 @@ def main(argv: list[str] | None = None) -> int:
         default="cubic",
         help="truth between the DEM's nodes: bicubic (every result so far) or bilinear facets",
     )
+    ap.add_argument(
+        "--feature",
+        choices=FEATURES,
+        default="none",
+        help="a sharp ground feature added to every site (real_dems.add_feature): a scarp "
+        "crossed by the tracks or lying between them, a flat lake, terraces (none: every "
+        "result before session 36)",
+    )
     args = ap.parse_args(argv)
     if args.tracks < 1:
         ap.error(f"--tracks: expected at least 1 rover track, got {args.tracks}")
@@ -690,6 +700,7 @@ def main(argv: list[str] | None = None) -> int:
         site["survey"] = args.survey
         site["tracks"] = args.tracks
         site["scattered"] = args.scattered
+        site["feature"] = args.feature
     sizes = sorted(args.sizes or ((3000,) if args.quick else SIZES))
     import real_dems
 
@@ -712,6 +723,7 @@ def main(argv: list[str] | None = None) -> int:
                 "grid": "truth's 2 m grid, 300 x 300 cells",
                 "tracks": args.tracks,
                 "scattered": args.scattered,
+                "feature": args.feature,
                 "samples": "real_dems.track_samples: `tracks` tracks + a `scattered` fraction "
                 "uniformly over the site, sd noise_sd_m",
                 "targets": TARGETS,
