@@ -30,13 +30,13 @@ from typing import Any
 
 import numpy as np
 from scipy.linalg import solve_triangular
+from scipy.optimize import minimize_scalar
 
-from .amplitude import AMPLITUDE_POINTS, amplitude_parts, local_amplitude
 from .errors import TilingWarning, bad_input
 from .gaps import largest_gap, sample_density
 from .linalg import cholesky_jitter
 from .microscale import without_microscale
-from .nogil_lapack import cho_solve_lower, solve_lower
+from .nogil_lapack import cho_solve_lower, solve_lower, symmetric_eigen
 from .radial_table import tabulate
 
 __all__ = [
@@ -52,6 +52,10 @@ __all__ = [
     "tiles_reaching_gaps",
 ]
 
+#: Most samples (nearest the tile centre) a tile's amplitude is estimated from.
+AMPLITUDE_POINTS = 150
+#: Search range of a tile's amplitude, relative to the global kernel variance.
+AMPLITUDE_BOUNDS = (1e-3, 1e3)
 #: Cells per block of a tile's prediction.
 QUERY_CHUNK = 256
 #: Largest halo of the default tiles, m.
@@ -209,19 +213,49 @@ def shortest_lengthscale(kernel) -> float:
     return float(min(np.min(p.lengths) for p in parts))
 
 
-def _matrix_fn(kernel, table):
-    """``f(A, C=None, amp=None)``: the kernel matrix of A and C (A's own without C), times
-    ``amp``, from ``table`` (:func:`terrain.radial_table.tabulate`) where there is one."""
+def local_amplitude(
+    K: np.ndarray, resid: np.ndarray, noise_var: np.ndarray, prior_sd: float
+) -> float:
+    """MAP amplitude ``s`` of ``s * K + diag(noise_var)`` for residuals ``resid`` (Eq 9).
 
-    def f(A: np.ndarray, C: np.ndarray | None = None, amp: float | None = None) -> np.ndarray:
-        if table is not None:
-            return table(A, C, amp)
-        M = kernel(A, C)
-        if amp is not None:
-            M *= amp
-        return M
+    Maximizes ``log p(resid | s) + log N(log s; 0, prior_sd^2)`` over ``log s`` in
+    :data:`AMPLITUDE_BOUNDS`. With ``D = diag(noise_var)^(-1/2)`` and ``D K D = U diag(lam) U^T``
+    (one eigendecomposition), ``log p = -1/2 sum(c_j^2 / (1 + s lam_j)) - 1/2 sum(log(1 +
+    s lam_j)) + const`` with ``c = U^T D resid``: every trial ``s`` costs O(n).
 
-    return f
+    Parameters
+    ----------
+    K : ndarray of shape (n, n)
+        Kernel matrix at the global hyperparameters (no noise), m^2.
+    resid : ndarray of shape (n,)
+        Samples minus the prior mean, m.
+    noise_var : ndarray of shape (n,)
+        Per-sample noise variance including the nugget, m^2 (floored at 1e-10 of the mean
+        kernel diagonal so that D exists).
+    prior_sd : float
+        Standard deviation of ``log s`` under the prior (1.0: a factor e at one sigma).
+
+    Returns
+    -------
+    float
+        The amplitude ``s`` (1.0, the global fit, for fewer than 3 samples).
+    """
+    n = resid.size
+    if n < 3:
+        return 1.0
+    floor = 1e-10 * float(np.mean(np.diag(K)))
+    d = 1.0 / np.sqrt(np.maximum(noise_var, floor))
+    lam, U = symmetric_eigen(K * d[:, None] * d[None, :])  # GIL released (nogil_lapack)
+    lam = np.maximum(lam, 0.0)
+    c2 = (U.T @ (resid * d)) ** 2
+
+    def neg_log_post(u: float) -> float:
+        a = 1.0 + np.exp(u) * lam
+        return 0.5 * float(np.sum(c2 / a) + np.sum(np.log(a))) + 0.5 * (u / prior_sd) ** 2
+
+    lo, hi = np.log(AMPLITUDE_BOUNDS)
+    res = minimize_scalar(neg_log_post, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+    return float(np.exp(res.x))
 
 
 def _smoothstep(t: np.ndarray) -> np.ndarray:
@@ -310,26 +344,16 @@ def predict_tiled(
     # Kernel matrices from a distance table (terrain.radial_table): one lookup an entry in
     # place of an exponential a part. Distances within a tile reach the diagonal of its
     # blending region plus a halo on either side.
-    r_max = np.sqrt(2.0) * (T + 2 * B) + 2 * H
-    split = amplitude_parts(kernel) if amplitude_prior_sd is not None else None
-    if split is not None:  # the trend fixed, the roughness scaled (terrain.amplitude)
-        fixed_matrix, scaled_matrix = (_matrix_fn(k, tabulate(k, r_max)) for k in split)
-        fixed_var = float(split[0].diag(xq[:1])[0])
-    else:
-        whole = _matrix_fn(kernel, tabulate(kernel, r_max))
+    table = tabulate(kernel, np.sqrt(2.0) * (T + 2 * B) + 2 * H)
 
     def matrix(A: np.ndarray, C: np.ndarray | None = None, amp: float | None = None):
-        """The kernel matrix of A and C (A's own without C), a tile's amplitude applied."""
-        if split is None or amp is None:
-            return whole(A, C, amp) if split is None else fixed_matrix(A, C) + scaled_matrix(A, C)
-        M = scaled_matrix(A, C, amp)
-        M += fixed_matrix(A, C)
+        """The kernel matrix of A and C (A's own without C), times a tile's amplitude."""
+        if table is not None:
+            return table(A, C, amp)
+        M = kernel(A, C)
+        if amp is not None:
+            M *= amp
         return M
-
-    def tile_prior_var(amp: float | None) -> float:
-        if amp is None:
-            return prior_var
-        return amp * prior_var if split is None else fixed_var + amp * (prior_var - fixed_var)
 
     # Every tile that some query touches: the query's own tile and, near an edge, neighbours.
     tiles = sorted({(i + a, j + b) for (i, j) in q_buckets for a in (-1, 0, 1) for b in (-1, 0, 1)})
@@ -382,15 +406,11 @@ def predict_tiled(
             inside = np.flatnonzero(np.all((Xd >= lo - B) & (Xd <= lo + T + B), axis=1))
             r = np.hypot(*(Xd[inside] - (lo + T / 2)).T)
             sub = inside[np.argsort(r, kind="stable")[:AMPLITUDE_POINTS]]
-            if split is None:
-                Ks, Kf = whole(Xd[sub]), None
-            else:
-                Ks, Kf = scaled_matrix(Xd[sub]), fixed_matrix(Xd[sub])
             amp = local_amplitude(
-                Ks, resid[d_idx[sub]], noise_var[d_idx[sub]], amplitude_prior_sd, Kf
+                matrix(Xd[sub]), resid[d_idx[sub]], noise_var[d_idx[sub]], amplitude_prior_sd
             )
         K = matrix(Xd, None, amp)
-        tile_var = tile_prior_var(amp)
+        scale = 1.0 if amp is None else amp
         K[np.diag_indices_from(K)] += noise_var[d_idx]
         # The factor and the solves below release the GIL (terrain.nogil_lapack), so the
         # tiles' threads run side by side.
@@ -410,7 +430,7 @@ def predict_tiled(
             mu[s : s + rows.size] = Ks @ alpha  # line 4
             if return_std:
                 V = solve_lower(L, Ks.T)  # line 5: v = L^-1 k*, in Ks's memory
-                var_s = np.maximum(tile_var - np.einsum("ij,ij->j", V, V), 0.0)
+                var_s = np.maximum(scale * prior_var - np.einsum("ij,ij->j", V, V), 0.0)
                 if W is not None:  # R&W Eq 2.42: the mean coefficients' uncertainty
                     R = basis[1][rows] - (W.T @ V).T
                     var_s += np.einsum("qi,ij,qj->q", R, basis[2], R)

@@ -7,8 +7,7 @@ import pytest
 
 from terrain import ElevationSamples, Grid, InputError, SquaredExponential, TerrainGP
 from terrain.likelihood import gaussian_lml
-from terrain.amplitude import AMPLITUDE_BOUNDS, local_amplitude
-from terrain.tiled import TileSpec, predict_tiled
+from terrain.tiled import AMPLITUDE_BOUNDS, TileSpec, local_amplitude, predict_tiled
 
 
 def test_local_amplitude_is_the_map_of_eq9():
