@@ -187,3 +187,36 @@ def test_a_site_that_is_no_dem_is_refused_by_name(real_terrain, tmp_path):
         real_terrain.parse_site(str(tmp_path / "missing.tif"))
     with pytest.raises(argparse.ArgumentTypeError, match="integers"):
         real_terrain.parse_site("olinda:first")
+
+
+def test_the_ground_features_are_what_they_say(real_terrain):
+    # Reference: hand computation on the site's own grid. The scarp is a logistic step of
+    # 24 % of the relief: 6 m on the 25 m site, half of it on its line, and the tracks cross
+    # it (east-west); the lake is flat at the 35th percentile over 35 % of the cells; the
+    # terraces never rise more than 30 % of a 2.5 m bench between two cells on one bench.
+    import real_dems
+
+    site = real_terrain.parse_site("jacksboro")
+    plain = real_dems.glacier_site("jacksboro")
+    assert real_terrain._data(site, 300)[0].equals(plain)  # "none": every earlier result
+    scarp = real_terrain._data(dict(site, feature="scarp"), 300)[0]
+    step = scarp.values - plain.values
+    assert step.max() == pytest.approx(6.0, abs=1e-3) and step.min() == pytest.approx(0, abs=1e-3)
+    x = plain.x.values - plain.x.values.mean()
+    y = plain.y.values - plain.y.values.mean()
+    col, row = np.argmin(np.abs(x)), np.argmin(np.abs(y))  # the cells nearest the centre
+    across = y[row] - 40.0 * np.sin(x[col] / 90.0)  # the line's own formula, by hand
+    assert step[row, col] == pytest.approx(6.0 / (1.0 + np.exp(-across / 1.5)), abs=1e-3)
+    assert np.all(np.diff(step[::-1, col]) >= -1e-12)  # rising northward along a track
+    along = real_dems.add_feature(plain, "scarp-along").values - plain.values
+    assert np.all(np.diff(along[np.argmin(np.abs(y))]) >= -1e-12)  # rising eastward
+    lake = real_dems.add_feature(plain, "lake").values
+    level = np.percentile(plain.values, 35.0)
+    assert lake.min() == level and np.mean(lake == level) == pytest.approx(0.35, abs=0.005)
+    terr = real_dems.add_feature(plain, "terraces")
+    bench = np.floor((terr.values - terr.values.min()) / 2.5 + 1e-9)
+    same = bench[:, 1:] == bench[:, :-1]
+    assert np.abs(np.diff(terr.values, axis=1))[same].max() <= 0.3 * 2.5 + 1e-9
+    assert "feature terraces" in terr.attrs["source"]
+    with pytest.raises(ValueError, match="feature"):
+        real_dems.add_feature(plain, "crevasse")
