@@ -106,11 +106,11 @@ def parse_site(spec: str) -> dict[str, Any]:
     import real_dems
 
     parts = spec.split(":")
-    if Path(spec).is_file():  # a path that itself holds a colon
+    if Path(spec).expanduser().is_file():  # a path that itself holds a colon
         parts = [spec]
     if len(parts) > 3 or not parts[0]:
         raise argparse.ArgumentTypeError(f"site: expected name[:window[:nodes]], got {spec!r}")
-    name = parts[0]
+    name = parts[0] if parts[0] in real_dems.NAMES else str(Path(parts[0]).expanduser())
     if name not in real_dems.NAMES and not Path(name).is_file():
         raise argparse.ArgumentTypeError(
             f"site: {name!r} is neither a real DEM of scripts/real_dems.py "
