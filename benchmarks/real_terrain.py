@@ -26,6 +26,9 @@ time and peak RSS are its own; one at a time: 2 cores):
 ``glacimap_dem``  the same with ``mean=terrain.coarse_dem(truth)`` (the 8 x 8 prior).
 ``glacimap_pycno`` the same 8 x 8 prior read as area means:
                   ``mean=terrain.PycnophylacticMean(coarse_dem(truth))``.
+``glacimap_breakline`` the default estimator told the line of a ``--feature scarp`` or
+                  ``scarp-along``: ``mean=terrain.BreaklineMean([line], width=1.0)`` (a
+                  constant plus the step, heights by GLS; the truth's step is 1.5 m wide).
 ``rbf_tps64``     scipy ``RBFInterpolator``, thin-plate spline, 64 neighbours, smoothing 0.
 ``verde_knn``     ``verde.KNeighbors()`` defaults.
 ``verde_spline``  ``verde.BlockReduce(np.median, spacing=4)`` + ``verde.Spline()``; guarded:
@@ -71,12 +74,13 @@ METHODS = (
     "glacimap",
     "glacimap_dem",
     "glacimap_pycno",
+    "glacimap_breakline",
     "rbf_tps64",
     "verde_knn",
     "verde_spline",
     "pykrige_ok",
 )
-WITH_STD = ("glacimap", "glacimap_dem", "glacimap_pycno", "pykrige_ok")
+WITH_STD = ("glacimap", "glacimap_dem", "glacimap_pycno", "glacimap_breakline", "pykrige_ok")
 SEED = 0
 #: Samples' noise sd, m (``track_samples``' default; every result before session 21).
 NOISE_SD = 0.2
@@ -323,13 +327,19 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
         from terrain import delaunay_linear
 
         pred = delaunay_linear(samples, grid).elevation.values
-    elif method in ("glacimap", "glacimap_dem", "glacimap_pycno"):
-        from terrain import PycnophylacticMean, TerrainGP, coarse_dem
+    elif method in ("glacimap", "glacimap_dem", "glacimap_pycno", "glacimap_breakline"):
+        import real_dems
 
+        from terrain import BreaklineMean, PycnophylacticMean, TerrainGP, coarse_dem
+
+        line = real_dems.feature_line(truth, site.get("feature", "none"))
+        if method == "glacimap_breakline" and line is None:
+            return {"skipped": "no breakline: --feature scarp or scarp-along", "method_s": None}
         kw = {
             "glacimap": {},
             "glacimap_dem": {"mean": coarse_dem(truth)},
             "glacimap_pycno": {"mean": PycnophylacticMean(coarse_dem(truth))},
+            "glacimap_breakline": {"mean": BreaklineMean([line], width=1.0)},
         }[method]
         gp = TerrainGP(seed=0, **kw)
         tf = time.perf_counter()

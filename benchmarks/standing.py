@@ -52,7 +52,12 @@ STANDING = (
     "real_terrain_scattered2_s34_50k.json",
 )
 #: The prior mean of each glacimap method, as the misses name it.
-MEANS = {"glacimap": "const", "glacimap_dem": "8x8", "glacimap_pycno": "area-means"}
+MEANS = {
+    "glacimap": "const",
+    "glacimap_dem": "8x8",
+    "glacimap_pycno": "area-means",
+    "glacimap_breakline": "breakline",
+}
 #: Which verdict keys make each target (all must pass).
 TARGETS = {
     "accuracy": (("rmse_ok", "rmse_over_delaunay"), ("rbf_ok", "rmse_over_rbf")),

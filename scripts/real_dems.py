@@ -467,6 +467,21 @@ def add_feature(truth: xr.DataArray, feature: str) -> xr.DataArray:
     return out
 
 
+def feature_line(truth: xr.DataArray, feature: str) -> np.ndarray | None:
+    """The line of a ``scarp`` or ``scarp-along`` (:func:`add_feature`) as breakline vertices,
+    shape (k, 2), in the site's CRS, run 200 m beyond the site on either side, ordered so
+    the step is up to its left (``terrain.BreaklineMean``'s sign); ``None`` for the other
+    features."""
+    if feature not in ("scarp", "scarp-along"):
+        return None
+    xm, ym = float(np.mean(truth.x)), float(np.mean(truth.y))
+    half = 0.5 * float(np.ptp(truth.x.values)) + 200.0
+    u = np.linspace(-half, half, int(2 * half) + 1)  # a vertex a metre
+    if feature == "scarp":  # y = 40 sin(x / 90), up to the north: west -> east
+        return np.column_stack([xm + u, ym + 40.0 * np.sin(u / 90.0)])
+    return np.column_stack([xm + 40.0 * np.sin(-u / 90.0), ym - u])  # up east: north -> south
+
+
 def track_samples(
     truth: xr.DataArray,
     n: int,

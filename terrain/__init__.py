@@ -6,6 +6,7 @@
 
 from .anisotropy import Anisotropy
 from .baselines import delaunay_linear
+from .breakline import BreaklineMean
 from .change import difference
 from .coregister import Coregistration, coregister
 from .errors import (
@@ -68,6 +69,7 @@ __all__ = [
     "PaperTuning",
     "PycnophylacticMean",
     "RasterMean",
+    "BreaklineMean",
     "ShortChainWarning",
     "SquaredExponential",
     "SumKernel",

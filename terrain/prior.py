@@ -367,11 +367,12 @@ def as_mean_function(mean: Any) -> MeanFunction:
     objects are returned as they are; any other callable ``xy (n, 2) -> (n,)`` is wrapped so
     its output is checked (shape, finite).
     """
-    from .raster_mean import RasterMean  # here: raster_mean imports this module
+    from .breakline import BreaklineMean  # here: both import this module
+    from .raster_mean import RasterMean
 
     if mean is None or (isinstance(mean, str) and mean.lower() == "constant"):
         return ConstantMean()
-    if isinstance(mean, ConstantMean | OffsetScaleMean | _CheckedMean):  # ours, as they are
+    if isinstance(mean, ConstantMean | OffsetScaleMean | _CheckedMean | BreaklineMean):
         return mean
     if isinstance(mean, Real) and not isinstance(mean, bool):
         return ConstantMean(float(mean))

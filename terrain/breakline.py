@@ -1,0 +1,294 @@
+"""Breaklines: a prior mean with a step across each line a surveyor knows the ground breaks on.
+
+An ice cliff, a calving front, a moraine's edge or a fault scarp is a step a stationary
+kernel cannot hold: fitted through it, the kernel gains a short rough part everywhere, so the
+1-sigma is too wide away from the step and too narrow along it (docs/terrain.md "Ground a
+bicubic site cannot have"). DEM production handles such lines as *breaklines* (hard edges
+of a TIN, or of a lidar DEM's hydro-flattening). Here each breakline adds one column to a
+linear prior mean (R&W Section 2.7, :mod:`terrain.linear_mean`)::
+
+    m(x) = h_base(x)^T beta_base + sum_j c_j S_j(x),   S_j(x) = expit(d_j(x) / width)
+
+with ``d_j`` the signed distance (m) from ``x`` to line ``j``, positive on its left (looking
+along the line from its first vertex), so ``c_j`` is the step's height (m), up to the left.
+The GP estimates every coefficient by generalised least squares with its uncertainty
+(:mod:`terrain.gp_mean`), which ``elevation_std`` carries. The kernel then fits the ground
+on either side.
+
+A breakline must cross the survey: both its ends outside the samples' bounding box. Beyond
+its ends it is taken as running straight on, so a line that stopped inside the survey would
+put a step where there is none.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import numpy as np
+from scipy.special import expit
+
+from .errors import bad_input
+from .linear_mean import (
+    check_coefficients,
+    check_xy,
+    check_z,
+    format_coefficients,
+    ols_coefficients,
+)
+
+__all__ = ["BreaklineMean"]
+
+#: How far beyond its ends a breakline is run on straight to split the plane, m.
+_REACH_M = 1e7
+#: Distance in widths beyond which a step is flat: expit(40) is 1 to double precision.
+_FLAT = 40.0
+
+
+def _line_coords(line: Any, j: int) -> np.ndarray:
+    coords = getattr(line, "coords", line)  # a shapely LineString, or (k, 2) vertices
+    xy = np.asarray(coords, dtype=float)
+    if xy.ndim != 2 or xy.shape[0] < 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        raise bad_input(
+            f"lines[{j}]",
+            getattr(xy, "shape", xy),
+            "a line of at least 2 finite (x, y) vertices in the samples' CRS, m",
+            "pass a shapely LineString or an array of shape (k, 2)",
+        )
+    if np.any(np.hypot(*np.diff(xy, axis=0).T) == 0):
+        raise bad_input(f"lines[{j}]", "repeated vertex", "distinct consecutive vertices", "")
+    return xy
+
+
+class BreaklineMean:
+    """A linear prior mean with a step across each breakline (see the module notes).
+
+    Parameters
+    ----------
+    lines : sequence of shapely.LineString or array of shape (k, 2)
+        Breaklines in the samples' CRS, metres; each crosses the survey (both ends outside
+        the samples' bounding box) without crossing itself.
+    base : mean, default "constant"
+        The mean the steps are added to; anything :class:`terrain.TerrainGP` takes as
+        ``mean`` whose coefficients are estimated (a constant, ``RasterMean(...,
+        offset="fit")``, a coarse DEM).
+    width : float, default 1.0
+        Scale of each step's logistic, m: it rises from 12 % to 88 % over 4 x ``width``.
+
+    Attributes
+    ----------
+    coef_ : ndarray of shape (n_coef,) or None
+        The base's coefficients, then each step's height (m, up to the line's left).
+    coef_cov_ : ndarray of shape (n_coef, n_coef) or None
+        Their covariance.
+    """
+
+    def __init__(self, lines: Any, base: Any = "constant", width: float = 1.0) -> None:
+        from .prior import as_mean_function  # here: prior imports this module
+
+        if isinstance(lines, np.ndarray) and lines.ndim == 2:
+            lines = [lines]
+        self.lines = tuple(_line_coords(line, j) for j, line in enumerate(lines))
+        if not self.lines:
+            raise bad_input("lines", 0, "at least one breakline", "or use the base mean alone")
+        self.base = as_mean_function(base)
+        if int(getattr(self.base, "n_coef", 0) or 0) < 1:
+            raise bad_input(
+                "base",
+                repr(self.base),
+                "a mean whose coefficients are estimated (n_coef >= 1)",
+                'e.g. base="constant", or a DEM mean with offset="fit" (a + b * DEM)',
+            )
+        if not (np.isfinite(width) and width > 0):
+            raise bad_input("width", width, "a positive step width in m", "e.g. width=1.0")
+        self.width = float(width)
+        self.coef_: np.ndarray | None = None
+        self.coef_cov_: np.ndarray | None = None
+        self._sides = tuple(self._left_side(xy) for xy in self.lines)
+
+    # -- the linear-mean protocol (terrain.linear_mean) -------------------------------------
+    @property
+    def n_coef(self) -> int:
+        return int(self.base.n_coef) + len(self.lines)
+
+    @property
+    def coef_names(self) -> tuple[str, ...]:
+        steps = tuple(f"step{j + 1}_m" for j in range(len(self.lines)))
+        return tuple(self.base.coef_names) + steps
+
+    @property
+    def crs(self) -> Any:
+        return getattr(self.base, "crs", None)
+
+    @property
+    def bind(self):
+        """``bind(crs, bounds)`` of a raster base (absent otherwise, as for a constant)."""
+        if not hasattr(self.base, "bind"):
+            raise AttributeError("bind")
+
+        def bind(crs: Any, bounds: Any) -> BreaklineMean:
+            out = copy.copy(self)
+            out.base = self.base.bind(crs, bounds)
+            return out
+
+        return bind
+
+    def steps(self, xy: np.ndarray) -> np.ndarray:
+        """``S_j(x)`` for each breakline, shape (n, n_lines), in [0, 1].
+
+        The distance to a line is exact (shapely) where the step is not yet flat: within
+        ``_FLAT`` widths of its vertices densified every half width (a k-d tree query); beyond,
+        ``expit`` is 0 or 1 to double precision whatever the distance."""
+        import shapely
+        from scipy.spatial import cKDTree
+
+        xy = check_xy(xy)
+        cols = []
+        for coords, left in zip(self.lines, self._sides, strict=True):
+            line = shapely.LineString(coords)
+            dense = shapely.get_coordinates(shapely.segmentize(line, 0.5 * self.width))
+            d = cKDTree(dense).query(xy)[0]
+            near = d < _FLAT * self.width
+            d[near] = shapely.distance(line, shapely.points(xy[near]))
+            sign = np.where(shapely.contains_xy(left, xy[:, 0], xy[:, 1]), 1.0, -1.0)
+            cols.append(expit(sign * d / self.width))
+        return np.column_stack(cols)
+
+    def basis(self, xy: np.ndarray) -> np.ndarray:
+        """Design matrix ``[h_base(x), S_1(x), ...]``, shape (n, n_coef)."""
+        return np.column_stack([np.asarray(self.base.basis(xy), float), self.steps(xy)])
+
+    def check_crossing(self, xy: np.ndarray) -> None:
+        """An ``InputError`` naming the line when one of its ends lies inside the bounding
+        box of ``xy`` (n, 2): a breakline must cross the survey."""
+        lo, hi = check_xy(xy).min(axis=0), xy.max(axis=0)
+        for j, coords in enumerate(self.lines):
+            for end in (coords[0], coords[-1]):
+                if np.all(end > lo) and np.all(end < hi):
+                    raise bad_input(
+                        f"lines[{j}]",
+                        f"end at ({end[0]:.1f}, {end[1]:.1f})",
+                        f"both ends outside the samples' box x {lo[0]:.1f}..{hi[0]:.1f}, "
+                        f"y {lo[1]:.1f}..{hi[1]:.1f}",
+                        "extend the breakline across the survey (it is run on straight "
+                        "beyond its ends), or leave it out",
+                    )
+
+    def fit(self, xy: np.ndarray, z: np.ndarray) -> BreaklineMean:
+        """A fitted copy: each step's height from the samples beside its line
+        (:meth:`local_steps`), then the base's coefficients by least squares on ``z`` less
+        the steps. The GP's kernel is searched on those residuals and every coefficient then
+        re-estimated by GLS. A global least-squares start would not do: a step splits the
+        site in two, and the halves' trend difference (9 m on a 25 m site) read as step
+        height left a step in the residuals that the kernel search fitted as rough ground."""
+        xy, z = check_z(xy, z)
+        self.check_crossing(xy)
+        steps, steps_cov = self.local_steps(xy, z)
+        rest = z - self.steps(xy) @ steps
+        base_beta, base_cov = ols_coefficients(np.asarray(self.base.basis(xy), float), rest)
+        p = base_beta.size
+        cov = np.zeros((self.n_coef, self.n_coef))
+        cov[:p, :p], cov[p:, p:] = base_cov, steps_cov
+        return self.with_coefficients(np.concatenate([base_beta, steps]), cov)
+
+    def local_steps(self, xy: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each step's height (m) and their covariance from the samples within ``R`` of the
+        lines, the ground there a plane of its own on every stretch of ``2 R`` along each
+        line (least squares of ``z`` on ``[planes, S]``; ``R`` = 5 x ``width`` or 3 x the
+        samples' median spacing, at least 10 m).
+
+        Raises an ``InputError`` naming the line when no stretch has samples on both sides.
+        """
+        import shapely
+        from scipy.spatial import cKDTree
+
+        spacing = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
+        reach = max(5.0 * self.width, 3.0 * spacing, 10.0)
+        pts = shapely.points(xy)
+        S = self.steps(xy)
+        cols, rows = [], np.zeros(len(xy), dtype=bool)
+        for j, coords in enumerate(self.lines):
+            line = shapely.LineString(coords)
+            near = shapely.distance(line, pts) <= reach
+            stretch = np.floor(shapely.line_locate_point(line, pts) / (2.0 * reach))
+            both = 0
+            for k in np.unique(stretch[near]):
+                m = near & (stretch == k)
+                plane = np.column_stack([np.ones(int(m.sum())), xy[m] - xy[m].mean(axis=0)])
+                if m.sum() < 6 or np.linalg.matrix_rank(plane) < 3:
+                    near &= ~m  # too few samples for a plane of their own: not used
+                    continue
+                both += int(np.any(S[m, j] > 0.5) and np.any(S[m, j] < 0.5))
+                col = np.zeros((len(xy), 3))
+                col[m] = plane
+                cols.append(col)
+            if both == 0:
+                raise bad_input(
+                    f"lines[{j}]",
+                    "no samples on both sides",
+                    f"samples within {reach:.0f} m of the line on either side of it",
+                    "survey across the breakline, or leave it out",
+                )
+            rows |= near
+        H = np.column_stack(cols + [S])[rows]
+        beta, cov = ols_coefficients(H, z[rows])
+        n = len(self.lines)
+        return beta[-n:], cov[-n:, -n:]
+
+    def with_coefficients(self, beta: Any, cov: Any) -> BreaklineMean:
+        """A copy whose value is ``basis(xy) @ beta`` (``beta`` (n_coef,), ``cov`` its
+        covariance)."""
+        beta, cov = check_coefficients(self, beta, cov)
+        out = copy.copy(self)
+        out.coef_, out.coef_cov_ = beta, cov
+        return out
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        """Mean elevation (m) at ``xy`` (n, 2) -> (n,)."""
+        if self.coef_ is None:
+            from .errors import NotFittedError
+
+            raise NotFittedError(
+                "BreaklineMean was called before its coefficients were estimated. Fix: let "
+                "TerrainGP fit it, or call mean.fit(xy, z) first."
+            )
+        return self.basis(xy) @ self.coef_
+
+    def __repr__(self) -> str:
+        n = len(self.lines)
+        text = f"BreaklineMean({n} line(s), width={self.width:g} m, base={self.base!r}"
+        if self.coef_ is not None:
+            text += ", " + format_coefficients(self.coef_names, self.coef_, self.coef_cov_)
+        return text + ")"
+
+    # -- geometry ---------------------------------------------------------------------------
+    @staticmethod
+    def _left_side(coords: np.ndarray):
+        """The half of the plane left of the line run on straight beyond its ends."""
+        import shapely
+        from shapely.ops import split
+
+        head = coords[0] - _REACH_M * _unit(coords[1] - coords[0])
+        tail = coords[-1] + _REACH_M * _unit(coords[-1] - coords[-2])
+        line = shapely.LineString(np.vstack([head, coords, tail]))
+        c = coords.mean(axis=0)
+        r = 0.5 * _REACH_M  # the run-on ends lie beyond the box: the line cuts it
+        plane = shapely.box(c[0] - r, c[1] - r, c[0] + r, c[1] + r)
+        pieces = list(split(plane, line).geoms)
+        if len(pieces) != 2:
+            raise bad_input(
+                "lines",
+                f"{len(pieces)} pieces",
+                "a line that does not cross itself (it splits the plane in two)",
+                "split it into lines that do not cross themselves",
+            )
+        a, b = coords[0], coords[1]
+        probe = (a + b) / 2 + 1e-3 * np.array([-(b - a)[1], (b - a)[0]]) / np.hypot(*(b - a))
+        left = [p for p in pieces if p.contains(shapely.Point(probe))]
+        piece = left[0] if left else pieces[1]
+        shapely.prepare(piece)
+        return piece
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.hypot(*v)
