@@ -133,6 +133,13 @@ class BreaklineMean:
 
         return bind
 
+    def __getattr__(self, name: str) -> Any:
+        """A raster base's own settings (``for_grid``, ``cells``, ``coarse_and_own_cell_m``...)
+        read through: the toolkit sets and reports them on the mean it is given."""
+        if name.startswith("_") or name in ("base", "lines", "width", "coef_", "coef_cov_"):
+            raise AttributeError(name)
+        return getattr(self.base, name)
+
     def steps(self, xy: np.ndarray) -> np.ndarray:
         """``S_j(x)`` for each breakline, shape (n, n_lines), in [0, 1].
 
@@ -255,11 +262,13 @@ class BreaklineMean:
         return self.basis(xy) @ self.coef_
 
     def __repr__(self) -> str:
-        n = len(self.lines)
-        text = f"BreaklineMean({n} line(s), width={self.width:g} m, base={self.base!r}"
-        if self.coef_ is not None:
-            text += ", " + format_coefficients(self.coef_names, self.coef_, self.coef_cov_)
-        return text + ")"
+        n, base = len(self.lines), self.base
+        if self.coef_ is None:
+            return f"BreaklineMean({n} line(s), width={self.width:g} m, base={base!r})"
+        p = int(base.n_coef)  # the base with its own coefficients, then the steps
+        base = base.with_coefficients(self.coef_[:p], self.coef_cov_[:p, :p])
+        steps = format_coefficients(self.coef_names[p:], self.coef_[p:], self.coef_cov_[p:, p:])
+        return f"BreaklineMean({n} line(s), width={self.width:g} m, base={base!r}, {steps})"
 
     # -- geometry ---------------------------------------------------------------------------
     @staticmethod

@@ -102,6 +102,18 @@ def reconstruct(
             'evidence) or "AZIMUTH,RATIO" (degrees from grid north; e.g. a glacier\'s flow).',
         ),
     ] = None,
+    breaklines: Annotated[
+        Path | None,
+        typer.Option(
+            "--breaklines",
+            help="GeoJSON or WKT lines (the map's CRS) the ground steps across: an ice cliff, "
+            "a moraine's edge; each crosses the survey. Step heights fitted with their 1-sigma.",
+        ),
+    ] = None,
+    breakline_width: Annotated[
+        float,
+        typer.Option("--breakline-width", help="Scale of each step's logistic, m."),
+    ] = 1.0,
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
@@ -128,8 +140,23 @@ def reconstruct(
         overrides = {"seed": seed}
         if anisotropy is not None:  # checked by the scenario's own rule (config.py)
             overrides["reconstruct"] = {"anisotropy": anisotropy}
+        lines = None
+        if breaklines is not None:  # read before the fit: a bad file fails in milliseconds
+            from ..breaklines_io import read_breaklines
+
+            lines = (read_breaklines(breaklines), breakline_width, breaklines)
         _reconstruct_csv(
-            samples, out_dir, overrides, resolution, crs, prior, bounds, like, checkpoints, config
+            samples,
+            out_dir,
+            overrides,
+            resolution,
+            crs,
+            prior,
+            bounds,
+            like,
+            checkpoints,
+            config,
+            lines,
         )
 
 
@@ -146,7 +173,9 @@ def _run_demo(out_dir: Path, seed: int, n_samples: int, resolution: float) -> No
     console.print(f"wrote {png} and {out_dir / 'demo_summary.json'}")
 
 
-def _reconstruct_csv(samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg):
+def _reconstruct_csv(
+    samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None
+):
     import warnings
 
     from terrain.errors import DegenerateFitWarning
@@ -180,13 +209,18 @@ def _reconstruct_csv(samples, out_dir, overrides, resolution, crs, prior, bounds
     footprint = _footprint_note(data, grid)
     if footprint:  # said before the fit: a big map of few samples is long to wait for
         console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
+    mean = prior_mean(prior, settings)
+    if lines is not None:  # a step across each breakline, added to the prior mean
+        from terrain import BreaklineMean
+
+        mean = BreaklineMean(lines[0], base=mean, width=lines[1])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):
             rec = reconstruct_stage(
                 data,
                 grid,
-                prior_mean(prior, settings),
+                mean,
                 settings,
                 seed,
                 landmark_rel_z_std=table.track_z_std,
@@ -217,6 +251,7 @@ def _reconstruct_csv(samples, out_dir, overrides, resolution, crs, prior, bounds
                 input_record("samples", samples),
                 input_record("prior", prior),
                 input_record("checkpoints", cps),
+                input_record("breaklines", None if lines is None else lines[2]),
             )
             if r is not None
         ]

@@ -1,0 +1,109 @@
+"""``glacimap reconstruct --breaklines``: a scarp the surveyor digitised, read from GeoJSON
+or WKT, fitted as a step of the prior mean and recorded in the products; bad files refused
+by name before anything is written.
+
+References: the step put into the samples (3 m) and the library's ``BreaklineMean`` on the
+same samples (``tests/test_breakline.py`` checks it by hand).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+from scipy.special import expit
+from typer.testing import CliRunner
+
+from terrain import InputError, default_site
+from terrain.sampling import sample_dem
+from toolkit.breaklines_io import read_breaklines
+from toolkit.cli import app
+
+runner = CliRunner()
+CRS = "EPSG:32608"
+X0, Y0 = 526000.0, 6475000.0
+
+
+def _line() -> np.ndarray:
+    """A sinuous east-west line through the default site, run 100 m beyond it."""
+    u = np.linspace(-100.0, 700.0, 161)
+    return np.column_stack([X0 + u, Y0 + 300.0 + 25.0 * np.sin(u / 70.0)])
+
+
+@pytest.fixture(scope="module")
+def scarp_csv(tmp_path_factory):
+    """600 spot heights (20 cm 1-sigma) of the default site with a 3 m step, 1 m wide, up
+    to the north of :func:`_line`."""
+    rng = np.random.default_rng(1)
+    xy = rng.uniform([X0 + 2, Y0 + 2], [X0 + 598, Y0 + 598], size=(600, 2))
+    across = xy[:, 1] - (Y0 + 300.0 + 25.0 * np.sin((xy[:, 0] - X0) / 70.0))
+    z = sample_dem(default_site(resolution=4.0), xy) + 3.0 * expit(across) + rng.normal(0, 0.2, 600)
+    path = tmp_path_factory.mktemp("in") / "spots.csv"
+    pd.DataFrame({"x": xy[:, 0], "y": xy[:, 1], "z": z, "z_var": 0.04}).to_csv(path, index=False)
+    return path
+
+
+def test_geojson_and_wkt_give_the_same_lines(tmp_path):
+    line = _line()
+    feature = {"type": "Feature", "properties": {"name": "ice cliff"},
+               "geometry": {"type": "LineString", "coordinates": line.tolist()}}  # fmt: skip
+    gj = tmp_path / "lines.geojson"
+    gj.write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}))
+    wkt = tmp_path / "lines.wkt"
+    wkt.write_text("LINESTRING (" + ", ".join(f"{x!r} {y!r}" for x, y in line.tolist()) + ")\n")
+    a, b = read_breaklines(gj), read_breaklines(wkt)
+    assert len(a) == len(b) == 1
+    np.testing.assert_array_equal(a[0], line)
+    np.testing.assert_array_equal(b[0], line)
+
+
+def test_cli_fits_the_step_and_records_it(scarp_csv, tmp_path):
+    gj = tmp_path / "cliff.geojson"
+    gj.write_text(json.dumps({"type": "LineString", "coordinates": _line().tolist()}))
+    out = tmp_path / "map"
+    res = runner.invoke(app, ["reconstruct", str(scarp_csv), "--crs", CRS, "--resolution", "10",
+                              "--breaklines", str(gj), "--out", str(out)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    attrs = xr.open_dataset(out / "product.nc").attrs
+    assert "BreaklineMean" in attrs["mean_function"]
+    height = float(attrs["mean_function"].split("step1_m=")[1].split()[0])
+    assert height == pytest.approx(3.0, abs=0.45)  # measured 3.14 +- 0.15 (3 sigma)
+    inputs = {r["role"]: r["name"] for r in json.loads(attrs["inputs"])}
+    assert inputs["breaklines"] == "cliff.geojson"
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (None, "an existing GeoJSON or WKT file"),
+        ("POLYGON ((0 0, 1 0, 1 1, 0 0))", "LineStrings"),
+        ("not a geometry", "does not parse"),
+        ('{"type": "FeatureCollection", "features": []}', "at least one line"),
+    ],
+)
+def test_cli_bad_breaklines_are_refused_before_anything_is_written(
+    scarp_csv, tmp_path, text, match
+):
+    path = tmp_path / "lines.wkt"
+    if text is not None:
+        path.write_text(text)
+    out = tmp_path / "never"
+    res = runner.invoke(app, ["reconstruct", str(scarp_csv), "--crs", CRS,
+                              "--breaklines", str(path), "--out", str(out)])  # fmt: skip
+    assert res.exit_code != 0
+    assert isinstance(res.exception, InputError) and "--breaklines" in str(res.exception)
+    assert match in str(res.exception)
+    assert not out.exists()
+
+
+def test_cli_line_ending_inside_the_survey_is_refused_by_name(scarp_csv, tmp_path):
+    gj = tmp_path / "short.geojson"
+    gj.write_text(json.dumps({"type": "LineString", "coordinates": _line()[40:120].tolist()}))
+    out = tmp_path / "never"
+    res = runner.invoke(app, ["reconstruct", str(scarp_csv), "--crs", CRS,
+                              "--breaklines", str(gj), "--out", str(out)])  # fmt: skip
+    assert isinstance(res.exception, InputError) and "lines[0]" in str(res.exception)
+    assert not out.exists()
