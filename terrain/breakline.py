@@ -213,7 +213,7 @@ class BreaklineMean:
         reach = max(5.0 * self.width, 3.0 * spacing, 10.0)
         pts = shapely.points(xy)
         S = self.steps(xy)
-        cols, rows = [], np.zeros(len(xy), dtype=bool)
+        planes, rows = [], np.zeros(len(xy), dtype=bool)  # (samples, their plane's columns)
         for j, coords in enumerate(self.lines):
             line = shapely.LineString(coords)
             near = shapely.distance(line, pts) <= reach
@@ -226,9 +226,7 @@ class BreaklineMean:
                     near &= ~m  # too few samples for a plane of their own: not used
                     continue
                 both += int(np.any(S[m, j] > 0.5) and np.any(S[m, j] < 0.5))
-                col = np.zeros((len(xy), 3))
-                col[m] = plane
-                cols.append(col)
+                planes.append((np.flatnonzero(m), plane))
             if both == 0:
                 raise bad_input(
                     f"lines[{j}]",
@@ -237,7 +235,12 @@ class BreaklineMean:
                     "survey across the breakline, or leave it out",
                 )
             rows |= near
-        H = np.column_stack(cols + [S])[rows]
+        where = np.full(len(xy), -1)
+        where[rows] = np.arange(int(rows.sum()))
+        H = np.zeros((int(rows.sum()), 3 * len(planes) + len(self.lines)))
+        for k, (idx, plane) in enumerate(planes):
+            H[where[idx], 3 * k : 3 * k + 3] = plane
+        H[:, 3 * len(planes) :] = S[rows]
         beta, cov = ols_coefficients(H, z[rows])
         n = len(self.lines)
         return beta[-n:], cov[-n:, -n:]
