@@ -107,3 +107,30 @@ def test_cli_line_ending_inside_the_survey_is_refused_by_name(scarp_csv, tmp_pat
                               "--breaklines", str(gj), "--out", str(out)])  # fmt: skip
     assert isinstance(res.exception, InputError) and "lines[0]" in str(res.exception)
     assert not out.exists()
+
+
+def test_process_takes_breaklines_and_finds_no_step_where_there_is_none(tmp_path):
+    # The example field folder (the default site, EPSG:32608) has no scarp: a line across
+    # its middle gets a height within 4 sigma of 0 (measured -0.0001 +- 0.028 m), recorded
+    # with the file; a bad file stops the command before any work, with nothing written.
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    wkt = tmp_path / "across.wkt"
+    wkt.write_text("LINESTRING (525900 6475300, 526700 6475310)\n")
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["process", str(example), "--breaklines", str(wkt),
+                              "--out", str(out)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    attrs = xr.open_dataset(out / "product.nc").attrs
+    text = attrs["mean_function"].split("step1_m=")[1].split()
+    height, sd = float(text[0]), float(text[2].rstrip(")"))
+    assert abs(height) < 4 * sd
+    assert {r["role"]: r["name"] for r in json.loads(attrs["inputs"])}["breaklines"] == wkt.name
+    bad = tmp_path / "bad.wkt"
+    bad.write_text("POINT (1 2)\n")
+    never = tmp_path / "never"
+    res = runner.invoke(app, ["process", str(example), "--breaklines", str(bad),
+                              "--out", str(never)])  # fmt: skip
+    assert isinstance(res.exception, InputError) and "--breaklines" in str(res.exception)
+    assert not never.exists()

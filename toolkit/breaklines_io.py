@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from terrain.errors import bad_input
 
-__all__ = ["read_breaklines"]
+__all__ = ["read_breaklines", "with_breaklines"]
 
 FIELD = "--breaklines"
 
@@ -56,6 +57,19 @@ def read_breaklines(path: Path) -> list[np.ndarray]:
     if not lines:
         raise bad_input(FIELD, path.name, "at least one line", "or leave --breaklines out")
     return lines
+
+
+def with_breaklines(mean: Any, lines: Any, width: float = 1.0) -> Any:
+    """``mean`` with a step across each breakline (``terrain.BreaklineMean``), or ``mean``
+    itself when ``lines`` is None. ``lines``: a GeoJSON/WKT path (:func:`read_breaklines`) or
+    vertex arrays already read."""
+    if lines is None:
+        return mean
+    from terrain import BreaklineMean
+
+    if isinstance(lines, str | Path):
+        lines = read_breaklines(Path(lines))
+    return BreaklineMean(lines, base=mean, width=width)
 
 
 def _geojson(obj: dict) -> list:

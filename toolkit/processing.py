@@ -27,6 +27,7 @@ from terrain import RasterMean
 from terrain.atomic import atomic_path
 from terrain.errors import InputError, bad_input
 
+from .breaklines_io import with_breaklines
 from .certify import require_checkpoints_on
 from .config import load_scenario
 from .export._files import output_folder, previous_products, remove_stale, staged_folder
@@ -223,6 +224,8 @@ def process(
     truth_path: Any = None,
     images: bool = True,
     on_frames: Callable[[int, int], None] | None = None,
+    breaklines: Any = None,
+    breakline_width: float = 1.0,
 ) -> ProcessResult:
     """Process a survey into certified products in ``out``.
 
@@ -255,6 +258,12 @@ def process(
         front-end and use those tracks (default); False: the folder's tracks table.
     on_frames : callable, optional
         ``on_frames(k, K)`` while the front-end tracks the frames (ingest).
+    breaklines : path or sequence of (k, 2) arrays, optional
+        Lines the ground steps across (an ice cliff, a moraine's edge), in the map's CRS,
+        each across the survey: a GeoJSON/WKT file or vertex arrays (``terrain.BreaklineMean``
+        on the prior mean; heights fitted).
+    breakline_width : float
+        Scale of each step's logistic, m.
 
     Returns
     -------
@@ -267,13 +276,18 @@ def process(
     with output_folder(out) as folder:
         return _process(
             log, prior, control, checkpoints, settings, folder, bounds, on_stage, on_progress,
-            truth, truth_path, images, on_frames,
+            truth, truth_path, images, on_frames, (breaklines, breakline_width),
         )  # fmt: skip
+
+
+def _file_or_none(source: Any) -> Any:
+    """``source`` when it names a file (its provenance is recorded), else None."""
+    return source if isinstance(source, str | os.PathLike) else None
 
 
 def _process(
     log, prior, control, checkpoints, settings, out, bounds, on_stage, on_progress, truth,
-    truth_path, images=True, on_frames=None,
+    truth_path, images=True, on_frames=None, breaklines=(None, 1.0),
 ) -> ProcessResult:  # fmt: skip
     seed = int(settings["seed"])
     res = ProcessResult(out=out, settings=settings)
@@ -288,7 +302,8 @@ def _process(
         resolution = float(settings["reconstruct"]["resolution_m"])
         if cps is not None and bounds is not None:  # on the map? known before localizing
             require_checkpoints_on(cps, map_grid(bounds, resolution, mlog.crs))
-        mean = prior_mean(prior, settings)
+        # a step across each breakline (a GeoJSON/WKT path or vertex arrays; the map's CRS)
+        mean = with_breaklines(prior_mean(prior, settings), *breaklines)
         # which files made the map, by name and SHA-256 (every product's metadata)
         log_record = None if isinstance(log, MeasurementLog) else input_record("log", log)
         prior_record = input_record("prior", prior)
@@ -299,6 +314,7 @@ def _process(
                 prior_record,
                 input_record("control", control),
                 input_record("checkpoints", checkpoints),
+                input_record("breaklines", _file_or_none(breaklines[0])),
             )
             if r is not None
         ]

@@ -46,6 +46,17 @@ def process_command(
             "table.",
         ),
     ] = True,
+    breaklines: Annotated[
+        Path | None,
+        typer.Option(
+            "--breaklines",
+            help="GeoJSON or WKT lines (the map's CRS) the ground steps across: an ice cliff, "
+            "a moraine's edge; each crosses the survey. Step heights fitted with their 1-sigma.",
+        ),
+    ] = None,
+    breakline_width: Annotated[
+        float, typer.Option("--breakline-width", help="Scale of each step's logistic, m.")
+    ] = 1.0,
 ) -> None:
     """Ingest -> localize -> select -> reconstruct -> certify -> export -> report."""
     from toolkit.config import load_scenario
@@ -53,6 +64,10 @@ def process_command(
 
     console = Console()
     settings = load_scenario(config)  # bad settings fail before any work
+    if breaklines is not None:  # a bad file fails before any work too
+        from toolkit.breaklines_io import read_breaklines
+
+        read_breaklines(breaklines)
     if images:
         _say_frames(console, log_dir)
     with stage_progress(console, PROCESS_STAGES) as (on_stage, on_progress):
@@ -68,6 +83,8 @@ def process_command(
             on_progress=on_progress,
             images=images,
             on_frames=lambda k, n: on_progress(k, n, "ingest"),  # the front-end's frames
+            breaklines=breaklines,
+            breakline_width=breakline_width,
         )
     cert = res.summary["certificate"]
     table = Table(title=f"glacimap process — seed {res.summary['seed']} — {res.out}")

@@ -209,11 +209,9 @@ def _reconstruct_csv(
     footprint = _footprint_note(data, grid)
     if footprint:  # said before the fit: a big map of few samples is long to wait for
         console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
-    mean = prior_mean(prior, settings)
-    if lines is not None:  # a step across each breakline, added to the prior mean
-        from terrain import BreaklineMean
+    from ..breaklines_io import with_breaklines
 
-        mean = BreaklineMean(lines[0], base=mean, width=lines[1])
+    mean = with_breaklines(prior_mean(prior, settings), *(lines or (None,))[:2])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):
