@@ -209,9 +209,11 @@ def _reconstruct_csv(
     footprint = _footprint_note(data, grid)
     if footprint:  # said before the fit: a big map of few samples is long to wait for
         console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
-    from ..breaklines_io import with_breaklines
+    mean = prior_mean(prior, settings)
+    if lines is not None:  # a step across each breakline, read before (fails fast)
+        from ..breaklines_io import with_breaklines
 
-    mean = with_breaklines(prior_mean(prior, settings), *(lines or (None,))[:2])
+        mean = with_breaklines(mean, lines[0], lines[1])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):
