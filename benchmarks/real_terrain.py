@@ -27,8 +27,9 @@ time and peak RSS are its own; one at a time: 2 cores):
 ``glacimap_pycno`` the same 8 x 8 prior read as area means:
                   ``mean=terrain.PycnophylacticMean(coarse_dem(truth))``.
 ``glacimap_breakline`` the default estimator told the line of a ``--feature scarp`` or
-                  ``scarp-along``: ``mean=terrain.BreaklineMean([line], width=1.0)`` (a
-                  constant plus the step, heights by GLS; the truth's step is 1.5 m wide).
+                  ``scarp-along``: ``mean=terrain.BreaklineMean([line])`` (a constant plus
+                  the step, its width chosen by the fit, its height by GLS; the truth's
+                  step is 1.5 m wide; session 36's first runs gave ``width=1.0``).
 ``rbf_tps64``     scipy ``RBFInterpolator``, thin-plate spline, 64 neighbours, smoothing 0.
 ``verde_knn``     ``verde.KNeighbors()`` defaults.
 ``verde_spline``  ``verde.BlockReduce(np.median, spacing=4)`` + ``verde.Spline()``; guarded:
@@ -339,7 +340,7 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
             "glacimap": {},
             "glacimap_dem": {"mean": coarse_dem(truth)},
             "glacimap_pycno": {"mean": PycnophylacticMean(coarse_dem(truth))},
-            "glacimap_breakline": {"mean": BreaklineMean([line], width=1.0)},
+            "glacimap_breakline": {"mean": BreaklineMean([line])},  # width="auto"
         }[method]
         gp = TerrainGP(seed=0, **kw)
         tf = time.perf_counter()

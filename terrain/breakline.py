@@ -23,12 +23,13 @@ put a step where there is none.
 from __future__ import annotations
 
 import copy
+from numbers import Real
 from typing import Any
 
 import numpy as np
 from scipy.special import expit
 
-from .errors import bad_input
+from .errors import NotFittedError, bad_input
 from .linear_mean import (
     check_coefficients,
     check_xy,
@@ -43,6 +44,8 @@ __all__ = ["BreaklineMean"]
 _REACH_M = 1e7
 #: Distance in widths beyond which a step is flat: expit(40) is 1 to double precision.
 _FLAT = 40.0
+#: Step widths ``width="auto"`` tries, m (those up to a quarter of the samples' reach).
+WIDTHS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
 
 
 def _line_coords(line: Any, j: int) -> np.ndarray:
@@ -72,8 +75,11 @@ class BreaklineMean:
         The mean the steps are added to; anything :class:`terrain.TerrainGP` takes as
         ``mean`` whose coefficients are estimated (a constant, ``RasterMean(...,
         offset="fit")``, a coarse DEM).
-    width : float, default 1.0
+    width : float or "auto", default "auto"
         Scale of each step's logistic, m: it rises from 12 % to 88 % over 4 x ``width``.
+        ``"auto"``: each line's own, from :data:`WIDTHS`, the one whose step and planes fit
+        the samples beside it best (least squares; :meth:`fit`). A step's fitted height is
+        the ground's only at the ground's width.
 
     Attributes
     ----------
@@ -81,9 +87,11 @@ class BreaklineMean:
         The base's coefficients, then each step's height (m, up to the line's left).
     coef_cov_ : ndarray of shape (n_coef, n_coef) or None
         Their covariance.
+    widths_ : tuple of float or None
+        Each line's step width, m (chosen by :meth:`fit` with ``width="auto"``).
     """
 
-    def __init__(self, lines: Any, base: Any = "constant", width: float = 1.0) -> None:
+    def __init__(self, lines: Any, base: Any = "constant", width: float | str = "auto") -> None:
         from .prior import as_mean_function  # here: prior imports this module
 
         if isinstance(lines, np.ndarray) and lines.ndim == 2:
@@ -99,9 +107,15 @@ class BreaklineMean:
                 "a mean whose coefficients are estimated (n_coef >= 1)",
                 'e.g. base="constant", or a DEM mean with offset="fit" (a + b * DEM)',
             )
-        if not (np.isfinite(width) and width > 0):
-            raise bad_input("width", width, "a positive step width in m", "e.g. width=1.0")
-        self.width = float(width)
+        if isinstance(width, str) and width == "auto":
+            self.width, self.widths_ = "auto", None
+        elif isinstance(width, Real) and not isinstance(width, bool) and width > 0:
+            self.width = float(width)
+            self.widths_ = (self.width,) * len(self.lines)
+        else:
+            raise bad_input(
+                "width", width, '"auto" or a positive step width in m', 'e.g. width="auto"'
+            )
         self.coef_: np.ndarray | None = None
         self.coef_cov_: np.ndarray | None = None
         self._sides = tuple(self._left_side(xy) for xy in self.lines)
@@ -136,30 +150,43 @@ class BreaklineMean:
     def __getattr__(self, name: str) -> Any:
         """A raster base's own settings (``for_grid``, ``cells``, ``coarse_and_own_cell_m``...)
         read through: the toolkit sets and reports them on the mean it is given."""
-        if name.startswith("_") or name in ("base", "lines", "width", "coef_", "coef_cov_"):
+        if name.startswith("_") or name in ("base", "lines", "width", "widths_", "coef_"):
             raise AttributeError(name)
         return getattr(self.base, name)
 
-    def steps(self, xy: np.ndarray) -> np.ndarray:
-        """``S_j(x)`` for each breakline, shape (n, n_lines), in [0, 1].
-
-        The distance to a line is exact (shapely) where the step is not yet flat: within
-        ``_FLAT`` widths of its vertices densified every half width (a k-d tree query); beyond,
-        ``expit`` is 0 or 1 to double precision whatever the distance."""
+    def signed_distances(self, xy: np.ndarray, within: float) -> np.ndarray:
+        """Signed distance (m, positive left) from ``xy`` (n, 2) to each line, shape
+        (n, n_lines): exact (shapely) within ``within`` m of a line, found by a k-d tree of
+        its vertices densified every 0.25 m; beyond, +-inf (a step is flat there)."""
         import shapely
         from scipy.spatial import cKDTree
 
         xy = check_xy(xy)
-        cols = []
-        for coords, left in zip(self.lines, self._sides, strict=True):
+        D = np.empty((len(xy), len(self.lines)))
+        for j, (coords, left) in enumerate(zip(self.lines, self._sides, strict=True)):
             line = shapely.LineString(coords)
-            dense = shapely.get_coordinates(shapely.segmentize(line, 0.5 * self.width))
-            d = cKDTree(dense).query(xy)[0]
-            near = d < _FLAT * self.width
+            dense = shapely.get_coordinates(shapely.segmentize(line, 0.25))
+            d = cKDTree(dense).query(xy, distance_upper_bound=within + 0.125)[0]  # inf beyond
+            near = np.isfinite(d)
             d[near] = shapely.distance(line, shapely.points(xy[near]))
-            sign = np.where(shapely.contains_xy(left, xy[:, 0], xy[:, 1]), 1.0, -1.0)
-            cols.append(expit(sign * d / self.width))
-        return np.column_stack(cols)
+            D[:, j] = np.where(shapely.contains_xy(left, xy[:, 0], xy[:, 1]), d, -d)
+        return D
+
+    def steps(self, xy: np.ndarray, widths: Any = None, D: np.ndarray | None = None) -> np.ndarray:
+        """``S_j(x) = expit(d_j(x) / width_j)``, shape (n, n_lines), in [0, 1], at ``widths``
+        (m, one per line; default :attr:`widths_`); ``D``: :meth:`signed_distances` when
+        known. Beyond ``_FLAT`` widths of a line ``expit`` is 0 or 1 to double precision, so
+        distances are exact only within them."""
+        widths = self.widths_ if widths is None else widths
+        if widths is None:
+            raise NotFittedError(
+                'BreaklineMean(width="auto") chooses its widths in fit. Fix: let TerrainGP '
+                "fit it, call mean.fit(xy, z) first, or give a width in m."
+            )
+        widths = np.asarray(widths, dtype=float)
+        if D is None:
+            D = self.signed_distances(xy, _FLAT * float(widths.max()))
+        return expit(D / widths)
 
     def basis(self, xy: np.ndarray) -> np.ndarray:
         """Design matrix ``[h_base(x), S_1(x), ...]``, shape (n, n_coef)."""
@@ -182,7 +209,8 @@ class BreaklineMean:
                     )
 
     def fit(self, xy: np.ndarray, z: np.ndarray) -> BreaklineMean:
-        """A fitted copy: each step's height from the samples beside its line
+        """A fitted copy: with ``width="auto"`` each line's width first
+        (:meth:`choose_widths`); each step's height from the samples beside its line
         (:meth:`local_steps`), then the base's coefficients by least squares on ``z`` less
         the steps. The GP's kernel is searched on those residuals and every coefficient then
         re-estimated by GLS. A global least-squares start would not do: a step splits the
@@ -190,43 +218,68 @@ class BreaklineMean:
         height left a step in the residuals that the kernel search fitted as rough ground."""
         xy, z = check_z(xy, z)
         self.check_crossing(xy)
-        steps, steps_cov = self.local_steps(xy, z)
-        rest = z - self.steps(xy) @ steps
+        out = copy.copy(self)
+        if self.width == "auto":
+            out.widths_ = self.choose_widths(xy, z)
+        steps, steps_cov = out.local_steps(xy, z)
+        rest = z - out.steps(xy) @ steps
         base_beta, base_cov = ols_coefficients(np.asarray(self.base.basis(xy), float), rest)
         p = base_beta.size
         cov = np.zeros((self.n_coef, self.n_coef))
         cov[:p, :p], cov[p:, p:] = base_cov, steps_cov
-        return self.with_coefficients(np.concatenate([base_beta, steps]), cov)
+        return out.with_coefficients(np.concatenate([base_beta, steps]), cov)
+
+    def choose_widths(self, xy: np.ndarray, z: np.ndarray) -> tuple[float, ...]:
+        """Each line's width from :data:`WIDTHS` (those up to a quarter of the reach ``R`` =
+        3 x the samples' median spacing, at least 10 m): the one whose step and planes
+        (:meth:`local_steps`' model, on the samples within ``R``) leave the least squared
+        residual, line by line from 1 m."""
+        reach = max(3.0 * _spacing(xy), 10.0)
+        ladder = [w for w in WIDTHS if 4.0 * w <= reach]
+        near = self._near(xy, reach)
+        widths = [1.0] * len(self.lines)
+        for j in range(len(self.lines)):
+
+            def rss(w: float, j: int = j) -> float:
+                return self._local_fit(z, (*widths[:j], w, *widths[j + 1 :]), near)[2]
+
+            widths[j] = min(ladder, key=rss)
+        return tuple(widths)
 
     def local_steps(self, xy: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each step's height (m) and their covariance from the samples within ``R`` of the
         lines, the ground there a plane of its own on every stretch of ``2 R`` along each
-        line (least squares of ``z`` on ``[planes, S]``; ``R`` = 5 x ``width`` or 3 x the
+        line (least squares of ``z`` on ``[planes, S]``; ``R`` = 5 widths or 3 x the
         samples' median spacing, at least 10 m).
 
         Raises an ``InputError`` naming the line when no stretch has samples on both sides.
         """
-        import shapely
-        from scipy.spatial import cKDTree
+        widths = self.widths_
+        reach = max(5.0 * max(widths), 3.0 * _spacing(xy), 10.0)
+        near = self._near(xy, reach)
+        return self._local_fit(z, widths, near)[:2]
 
-        spacing = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
-        reach = max(5.0 * self.width, 3.0 * spacing, 10.0)
-        pts = shapely.points(xy)
-        S = self.steps(xy)
+    def _near(self, xy: np.ndarray, reach: float) -> dict[str, Any]:
+        """The samples within ``reach`` of the lines, their signed distances (exact) and
+        planes."""
+        import shapely
+
+        D = self.signed_distances(xy, reach)
         planes, rows = [], np.zeros(len(xy), dtype=bool)  # (samples, their plane's columns)
         for j, coords in enumerate(self.lines):
-            line = shapely.LineString(coords)
-            near = shapely.distance(line, pts) <= reach
-            stretch = np.floor(shapely.line_locate_point(line, pts) / (2.0 * reach))
+            near = np.abs(D[:, j]) <= reach
+            idx = np.flatnonzero(near)
+            along = shapely.line_locate_point(shapely.LineString(coords), shapely.points(xy[idx]))
+            stretch = np.floor(along / (2.0 * reach))
             both = 0
-            for k in np.unique(stretch[near]):
-                m = near & (stretch == k)
-                plane = np.column_stack([np.ones(int(m.sum())), xy[m] - xy[m].mean(axis=0)])
-                if m.sum() < 6 or np.linalg.matrix_rank(plane) < 3:
-                    near &= ~m  # too few samples for a plane of their own: not used
+            for k in np.unique(stretch):
+                m = idx[stretch == k]
+                plane = np.column_stack([np.ones(m.size), xy[m] - xy[m].mean(axis=0)])
+                if m.size < 6 or np.linalg.matrix_rank(plane) < 3:
+                    near[m] = False  # too few samples for a plane of their own: not used
                     continue
-                both += int(np.any(S[m, j] > 0.5) and np.any(S[m, j] < 0.5))
-                planes.append((np.flatnonzero(m), plane))
+                both += int(np.any(D[m, j] > 0) and np.any(D[m, j] < 0))
+                planes.append((m, plane))
             if both == 0:
                 raise bad_input(
                     f"lines[{j}]",
@@ -235,15 +288,22 @@ class BreaklineMean:
                     "survey across the breakline, or leave it out",
                 )
             rows |= near
-        where = np.full(len(xy), -1)
+        return {"D": D[rows], "planes": planes, "rows": rows}
+
+    def _local_fit(self, z, widths, near) -> tuple[np.ndarray, np.ndarray, float]:
+        """(steps, their covariance, residual sum of squares) of :meth:`local_steps` on the
+        samples of :meth:`_near`."""
+        rows, planes = near["rows"], near["planes"]
+        where = np.full(rows.size, -1)
         where[rows] = np.arange(int(rows.sum()))
         H = np.zeros((int(rows.sum()), 3 * len(planes) + len(self.lines)))
         for k, (idx, plane) in enumerate(planes):
             H[where[idx], 3 * k : 3 * k + 3] = plane
-        H[:, 3 * len(planes) :] = S[rows]
+        H[:, 3 * len(planes) :] = self.steps(None, widths, D=near["D"])
         beta, cov = ols_coefficients(H, z[rows])
+        rss = float(np.sum((z[rows] - H @ beta) ** 2))
         n = len(self.lines)
-        return beta[-n:], cov[-n:, -n:]
+        return beta[-n:], cov[-n:, -n:], rss
 
     def with_coefficients(self, beta: Any, cov: Any) -> BreaklineMean:
         """A copy whose value is ``basis(xy) @ beta`` (``beta`` (n_coef,), ``cov`` its
@@ -256,8 +316,6 @@ class BreaklineMean:
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         """Mean elevation (m) at ``xy`` (n, 2) -> (n,)."""
         if self.coef_ is None:
-            from .errors import NotFittedError
-
             raise NotFittedError(
                 "BreaklineMean was called before its coefficients were estimated. Fix: let "
                 "TerrainGP fit it, or call mean.fit(xy, z) first."
@@ -266,12 +324,15 @@ class BreaklineMean:
 
     def __repr__(self) -> str:
         n, base = len(self.lines), self.base
+        width = "width='auto'" if self.width == "auto" else f"width={self.width:g} m"
+        if self.widths_ is not None and self.width == "auto":
+            width += " (" + ", ".join(f"{w:g}" for w in self.widths_) + " m)"
         if self.coef_ is None:
-            return f"BreaklineMean({n} line(s), width={self.width:g} m, base={base!r})"
+            return f"BreaklineMean({n} line(s), {width}, base={base!r})"
         p = int(base.n_coef)  # the base with its own coefficients, then the steps
         base = base.with_coefficients(self.coef_[:p], self.coef_cov_[:p, :p])
         steps = format_coefficients(self.coef_names[p:], self.coef_[p:], self.coef_cov_[p:, p:])
-        return f"BreaklineMean({n} line(s), width={self.width:g} m, base={base!r}, {steps})"
+        return f"BreaklineMean({n} line(s), {width}, base={base!r}, {steps})"
 
     # -- geometry ---------------------------------------------------------------------------
     @staticmethod
@@ -300,6 +361,13 @@ class BreaklineMean:
         piece = left[0] if left else pieces[1]
         shapely.prepare(piece)
         return piece
+
+
+def _spacing(xy: np.ndarray) -> float:
+    """The samples' median nearest-neighbour distance, m."""
+    from scipy.spatial import cKDTree
+
+    return float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

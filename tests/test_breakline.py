@@ -15,6 +15,7 @@ import shapely
 from scipy.special import expit
 
 from terrain import BreaklineMean, ElevationSamples, InputError, TerrainGP
+from terrain.errors import NotFittedError
 
 
 def test_the_step_is_the_logistic_of_the_signed_distance():
@@ -90,6 +91,20 @@ def test_the_start_is_the_step_not_the_halves_difference(scarp_survey):
     assert abs(m.coef_[-1] - 3.0) < 0.3  # measured 2.93
     ols = np.linalg.lstsq(np.column_stack([np.ones(len(z)), m.steps(xy)]), z, rcond=None)[0]
     assert abs(ols[-1] - 3.0) > 3.0  # measured 7.33: why the start is local
+
+
+def test_auto_width_finds_the_steps_width(scarp_survey):
+    # The survey's step is 1 m wide; a 3 m wide one made from the same draw. The ladder
+    # steps by sqrt(2): the nearest rung or its neighbour (measured 1.0 and 2.0).
+    xy, f, step, noise, line, *_ = scarp_survey
+    narrow = BreaklineMean([line]).fit(xy, f + step + noise)
+    assert narrow.width == "auto" and narrow.widths_[0] in (0.7, 1.0, 1.4)
+    across = xy[:, 1] - (150 + 30 * np.sin(xy[:, 0] / 60))
+    wide = BreaklineMean([line]).fit(xy, f + 3.0 * expit(across / 3.0) + noise)
+    assert wide.widths_[0] in (2.0, 2.8, 4.0)
+    assert "width='auto' (1 m)" in repr(narrow)
+    with pytest.raises(NotFittedError, match="auto"):
+        BreaklineMean([line]).steps(xy)
 
 
 def test_bad_lines_are_refused_by_name(scarp_survey):

@@ -99,6 +99,16 @@ def test_cli_bad_breaklines_are_refused_before_anything_is_written(
     assert not out.exists()
 
 
+def test_the_width_option_reads_auto_or_metres():
+    from toolkit.breaklines_io import breakline_width
+
+    assert breakline_width("auto") == breakline_width(" AUTO ") == "auto"
+    assert breakline_width("1.5") == 1.5
+    for bad in ("wide", "0", "-1", "nan"):
+        with pytest.raises(InputError, match="--breakline-width"):
+            breakline_width(bad)
+
+
 def test_cli_line_ending_inside_the_survey_is_refused_by_name(scarp_csv, tmp_path):
     gj = tmp_path / "short.geojson"
     gj.write_text(json.dumps({"type": "LineString", "coordinates": _line()[40:120].tolist()}))

@@ -16,7 +16,7 @@ import numpy as np
 
 from terrain.errors import bad_input
 
-__all__ = ["read_breaklines", "with_breaklines"]
+__all__ = ["breakline_width", "read_breaklines", "with_breaklines"]
 
 FIELD = "--breaklines"
 
@@ -59,17 +59,33 @@ def read_breaklines(path: Path) -> list[np.ndarray]:
     return lines
 
 
-def with_breaklines(mean: Any, lines: Any, width: float = 1.0) -> Any:
+def with_breaklines(mean: Any, lines: Any, width: float | str = "auto") -> Any:
     """``mean`` with a step across each breakline (``terrain.BreaklineMean``), or ``mean``
     itself when ``lines`` is None. ``lines``: a GeoJSON/WKT path (:func:`read_breaklines`) or
-    vertex arrays already read."""
+    vertex arrays already read; ``width``: ``"auto"`` or metres (:func:`breakline_width`)."""
     if lines is None:
         return mean
     from terrain import BreaklineMean
 
     if isinstance(lines, str | Path):
         lines = read_breaklines(Path(lines))
-    return BreaklineMean(lines, base=mean, width=width)
+    return BreaklineMean(lines, base=mean, width=breakline_width(width))
+
+
+def breakline_width(value: Any) -> float | str:
+    """``--breakline-width``: ``"auto"`` (each line's own, chosen by fit) or a positive
+    number of metres; anything else an ``InputError`` naming the option."""
+    if isinstance(value, str) and value.strip().lower() == "auto":
+        return "auto"
+    try:
+        width = float(value)
+    except (TypeError, ValueError):
+        width = float("nan")
+    if not width > 0:
+        raise bad_input(
+            "--breakline-width", value, '"auto" or a positive width in m', "e.g. auto or 1.5"
+        )
+    return width
 
 
 def _geojson(obj: dict) -> list:

@@ -225,7 +225,7 @@ def process(
     images: bool = True,
     on_frames: Callable[[int, int], None] | None = None,
     breaklines: Any = None,
-    breakline_width: float = 1.0,
+    breakline_width: float | str = "auto",
 ) -> ProcessResult:
     """Process a survey into certified products in ``out``.
 
@@ -262,8 +262,8 @@ def process(
         Lines the ground steps across (an ice cliff, a moraine's edge), in the map's CRS,
         each across the survey: a GeoJSON/WKT file or vertex arrays (``terrain.BreaklineMean``
         on the prior mean; heights fitted).
-    breakline_width : float
-        Scale of each step's logistic, m.
+    breakline_width : float or "auto"
+        Scale of each step's logistic, m; ``"auto"``: each line's own, chosen by the fit.
 
     Returns
     -------
@@ -287,7 +287,7 @@ def _file_or_none(source: Any) -> Any:
 
 def _process(
     log, prior, control, checkpoints, settings, out, bounds, on_stage, on_progress, truth,
-    truth_path, images=True, on_frames=None, breaklines=(None, 1.0),
+    truth_path, images=True, on_frames=None, breaklines=(None, "auto"),
 ) -> ProcessResult:  # fmt: skip
     seed = int(settings["seed"])
     res = ProcessResult(out=out, settings=settings)

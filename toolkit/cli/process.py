@@ -55,8 +55,13 @@ def process_command(
         ),
     ] = None,
     breakline_width: Annotated[
-        float, typer.Option("--breakline-width", help="Scale of each step's logistic, m.")
-    ] = 1.0,
+        str,
+        typer.Option(
+            "--breakline-width",
+            help="Scale of each step's logistic, m, or \"auto\": each line's own, by least "
+            "squares beside it.",
+        ),
+    ] = "auto",
 ) -> None:
     """Ingest -> localize -> select -> reconstruct -> certify -> export -> report."""
     from toolkit.config import load_scenario
@@ -65,9 +70,11 @@ def process_command(
     console = Console()
     settings = load_scenario(config)  # bad settings fail before any work
     if breaklines is not None:  # a bad file fails before any work too
+        from toolkit.breaklines_io import breakline_width as width_option
         from toolkit.breaklines_io import read_breaklines
 
         read_breaklines(breaklines)
+        width_option(breakline_width)
     if images:
         _say_frames(console, log_dir)
     with stage_progress(console, PROCESS_STAGES) as (on_stage, on_progress):

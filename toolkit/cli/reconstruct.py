@@ -111,9 +111,13 @@ def reconstruct(
         ),
     ] = None,
     breakline_width: Annotated[
-        float,
-        typer.Option("--breakline-width", help="Scale of each step's logistic, m."),
-    ] = 1.0,
+        str,
+        typer.Option(
+            "--breakline-width",
+            help="Scale of each step's logistic, m, or \"auto\": each line's own, by least "
+            "squares beside it.",
+        ),
+    ] = "auto",
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
@@ -142,9 +146,10 @@ def reconstruct(
             overrides["reconstruct"] = {"anisotropy": anisotropy}
         lines = None
         if breaklines is not None:  # read before the fit: a bad file fails in milliseconds
+            from ..breaklines_io import breakline_width as width_option
             from ..breaklines_io import read_breaklines
 
-            lines = (read_breaklines(breaklines), breakline_width, breaklines)
+            lines = (read_breaklines(breaklines), width_option(breakline_width), breaklines)
         _reconstruct_csv(
             samples,
             out_dir,
