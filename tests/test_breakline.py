@@ -95,7 +95,7 @@ def test_the_start_is_the_step_not_the_halves_difference(scarp_survey):
 
 def test_auto_width_finds_the_steps_width(scarp_survey):
     # The survey's step is 1 m wide; a 3 m wide one made from the same draw. The ladder
-    # steps by sqrt(2): the nearest rung or its neighbour (measured 1.0 and 2.0).
+    # steps by sqrt(2): the nearest rung or its neighbour (measured 1.0 and 2.8).
     xy, f, step, noise, line, *_ = scarp_survey
     narrow = BreaklineMean([line]).fit(xy, f + step + noise)
     assert narrow.width == "auto" and narrow.widths_[0] in (0.7, 1.0, 1.4)
