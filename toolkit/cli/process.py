@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ._breaklines import Breaklines, BreaklineWidth
 from ._progress import certificate_rows, print_warnings, stage_progress
 
 
@@ -46,22 +47,8 @@ def process_command(
             "table.",
         ),
     ] = True,
-    breaklines: Annotated[
-        Path | None,
-        typer.Option(
-            "--breaklines",
-            help="GeoJSON or WKT lines (the map's CRS) the ground steps across: an ice cliff, "
-            "a moraine's edge; each crosses the survey. Step heights fitted with their 1-sigma.",
-        ),
-    ] = None,
-    breakline_width: Annotated[
-        str,
-        typer.Option(
-            "--breakline-width",
-            help="Scale of each step's logistic, m, or \"auto\": each line's own, by least "
-            "squares beside it.",
-        ),
-    ] = "auto",
+    breaklines: Breaklines = None,
+    breakline_width: BreaklineWidth = "auto",
 ) -> None:
     """Ingest -> localize -> select -> reconstruct -> certify -> export -> report."""
     from toolkit.config import load_scenario

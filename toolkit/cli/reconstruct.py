@@ -15,6 +15,8 @@ from rich.table import Table
 from terrain.atomic import atomic_path
 from terrain.errors import bad_input
 
+from ._breaklines import Breaklines, BreaklineWidth
+
 console = Console()
 #: What ``reconstruct SAMPLES.csv`` wrote (the next run into --out replaces it all).
 SUMMARY = "reconstruct_summary.json"
@@ -102,22 +104,8 @@ def reconstruct(
             'evidence) or "AZIMUTH,RATIO" (degrees from grid north; e.g. a glacier\'s flow).',
         ),
     ] = None,
-    breaklines: Annotated[
-        Path | None,
-        typer.Option(
-            "--breaklines",
-            help="GeoJSON or WKT lines (the map's CRS) the ground steps across: an ice cliff, "
-            "a moraine's edge; each crosses the survey. Step heights fitted with their 1-sigma.",
-        ),
-    ] = None,
-    breakline_width: Annotated[
-        str,
-        typer.Option(
-            "--breakline-width",
-            help="Scale of each step's logistic, m, or \"auto\": each line's own, by least "
-            "squares beside it.",
-        ),
-    ] = "auto",
+    breaklines: Breaklines = None,
+    breakline_width: BreaklineWidth = "auto",
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 

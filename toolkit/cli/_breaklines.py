@@ -1,0 +1,26 @@
+"""The ``--breaklines`` and ``--breakline-width`` options ``reconstruct`` and ``process``
+share (``toolkit.breaklines_io``; ``terrain.BreaklineMean``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+Breaklines = Annotated[
+    Path | None,
+    typer.Option(
+        "--breaklines",
+        help="GeoJSON or WKT lines (the map's CRS) the ground steps across: an ice cliff, "
+        "a moraine's edge; each crosses the survey. Step heights fitted with their 1-sigma.",
+    ),
+]
+BreaklineWidth = Annotated[
+    str,
+    typer.Option(
+        "--breakline-width",
+        help="Scale of each step's logistic, m, or \"auto\": each line's own, by least "
+        "squares beside it.",
+    ),
+]
