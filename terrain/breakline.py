@@ -7,13 +7,14 @@ bicubic site cannot have"). DEM production handles such lines as *breaklines* (h
 of a TIN, or of a lidar DEM's hydro-flattening). Here each breakline adds one column to a
 linear prior mean (R&W Section 2.7, :mod:`terrain.linear_mean`)::
 
-    m(x) = h_base(x)^T beta_base + sum_j c_j S_j(x),   S_j(x) = expit(d_j(x) / width)
+    m(x) = h_base(x)^T beta_base + sum_j c_j S_j(x),   S_j(x) = expit(d_j(x) / w_j)
 
 with ``d_j`` the signed distance (m) from ``x`` to line ``j``, positive on its left (looking
 along the line from its first vertex), so ``c_j`` is the step's height (m), up to the left.
 The GP estimates every coefficient by generalised least squares with its uncertainty
 (:mod:`terrain.gp_mean`), which ``elevation_std`` carries. The kernel then fits the ground
-on either side.
+on either side. Each step's width ``w_j`` is given, or chosen by least squares on the
+samples beside its line (``width="auto"``, :meth:`BreaklineMean.choose_widths`).
 
 A breakline must cross the survey: both its ends outside the samples' bounding box. Beyond
 its ends it is taken as running straight on, so a line that stopped inside the survey would
