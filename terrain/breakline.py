@@ -220,9 +220,10 @@ class BreaklineMean:
         xy, z = check_z(xy, z)
         self.check_crossing(xy)
         out = copy.copy(self)
+        spacing = _spacing(xy)  # the samples' median spacing, m: both reaches
         if self.width == "auto":
-            out.widths_ = self.choose_widths(xy, z)
-        steps, steps_cov = out.local_steps(xy, z)
+            out.widths_ = self.choose_widths(xy, z, spacing)
+        steps, steps_cov = out.local_steps(xy, z, spacing)
         rest = z - out.steps(xy) @ steps
         base_beta, base_cov = ols_coefficients(np.asarray(self.base.basis(xy), float), rest)
         p = base_beta.size
@@ -230,13 +231,16 @@ class BreaklineMean:
         cov[:p, :p], cov[p:, p:] = base_cov, steps_cov
         return out.with_coefficients(np.concatenate([base_beta, steps]), cov)
 
-    def choose_widths(self, xy: np.ndarray, z: np.ndarray) -> tuple[float, ...]:
+    def choose_widths(
+        self, xy: np.ndarray, z: np.ndarray, spacing: float | None = None
+    ) -> tuple[float, ...]:
         """Each line's width from :data:`WIDTHS` (those up to a quarter of the reach ``R`` =
         3 x the samples' median spacing, at least 16 m: every rung on a rover's survey): the
         one whose step and planes (:meth:`local_steps`' model, on the samples within ``R``)
         leave the least squared residual, line by line from 1 m. On a synthetic draw with
         steps 0.5, 1, 1.5 and 3 m wide it picks 0.5, 1, 1.4 and 2.8 (tests)."""
-        reach = max(3.0 * _spacing(xy), 16.0)
+        spacing = _spacing(xy) if spacing is None else spacing
+        reach = max(3.0 * spacing, 16.0)
         ladder = [w for w in WIDTHS if 4.0 * w <= reach]
         near = self._near(xy, reach)
         widths = [1.0] * len(self.lines)
@@ -248,7 +252,9 @@ class BreaklineMean:
             widths[j] = min(ladder, key=rss)
         return tuple(widths)
 
-    def local_steps(self, xy: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def local_steps(
+        self, xy: np.ndarray, z: np.ndarray, spacing: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Each step's height (m) and their covariance from the samples within ``R`` of the
         lines, the ground there a plane of its own on every stretch of ``2 R`` along each
         line (least squares of ``z`` on ``[planes, S]``; ``R`` = 5 widths or 3 x the
@@ -257,7 +263,8 @@ class BreaklineMean:
         Raises an ``InputError`` naming the line when no stretch has samples on both sides.
         """
         widths = self.widths_
-        reach = max(5.0 * max(widths), 3.0 * _spacing(xy), 10.0)
+        spacing = _spacing(xy) if spacing is None else spacing
+        reach = max(5.0 * max(widths), 3.0 * spacing, 10.0)
         near = self._near(xy, reach)
         return self._local_fit(z, widths, near)[:2]
 
