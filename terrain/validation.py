@@ -22,14 +22,17 @@ samples lie as far from the data as the map's cells do (and, where it moves the 
 matched to the map cells' whole neighbourhoods: :mod:`terrain.heldout_weights`), and the
 map-level scores
 (``variance_ratio``, ``map_coverage_68``, ``map_coverage_95``) remove the samples' noise,
-which otherwise hides a map 1-sigma that is too small. The verdict speaks of those.
+which otherwise hides a map 1-sigma that is too small. Where held-out samples are dense,
+planes through their neighbours average most of the noise away first
+(:mod:`terrain.heldout_local_fit`), fitted to what each fold's prior mean leaves of the
+elevations: a step the mean holds (:class:`terrain.BreaklineMean`) is not a plane's misfit.
+The verdict speaks of those.
 
 Cost: O(n log n) for the blocks plus one fit and one predict per fold in the estimator.
 """
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -41,6 +44,7 @@ from scipy.spatial import cKDTree
 
 from .along_track import ALONG_TRACK_FRACTION, ALONG_TRACK_TAU_S
 from .errors import bad_input, positive_number
+from .estimator_clone import clone, fixed_overrides, is_fitted
 from .heldout_design import (
     along_track_shared,
     default_targets,
@@ -72,7 +76,6 @@ __all__ = [
 REFIT_MODES = ("hyperparameters-fixed", "all")
 #: Quantile of held-out distances to the folds' data bounding the check's reach.
 REACH_QUANTILE = 0.99
-_HYPER_FIXED = {"nugget_bounds": "fixed", "optimize": False}
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,36 +235,6 @@ def _target_xy(targets: Any, xy: np.ndarray) -> np.ndarray:
     return arr
 
 
-def _is_fitted(est: Any) -> bool:
-    return any(k.endswith("_") and not k.startswith("__") for k in vars(est))
-
-
-def _clone(est: Any, **overrides: Any) -> Any:
-    """A new unfitted estimator with ``est``'s constructor parameters (scikit-learn style):
-    names from ``inspect.signature(type(est).__init__)``, values from ``getattr(est, name)``;
-    ``overrides`` that the constructor does not take are ignored."""
-    params = [
-        p
-        for p in inspect.signature(type(est).__init__).parameters.values()
-        if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
-    ]
-    kwargs = {p.name: getattr(est, p.name) for p in params}
-    kwargs.update({k: v for k, v in overrides.items() if k in kwargs})
-    return type(est)(**kwargs)
-
-
-def _fixed_overrides(est: Any) -> dict[str, Any]:
-    """The fitted model's kernel, nugget and anisotropy, held fixed, and the GP it chose
-    (exact or tiled, with or without per-tile amplitudes), so that a fold with fewer samples
-    than the map is not scored with another model (``local_amplitude="auto"`` turns on from
-    1,000)."""
-    out = dict(_HYPER_FIXED)
-    for name in ("kernel", "nugget", "method", "local_amplitude", "anisotropy"):
-        if hasattr(est, name + "_"):
-            out[name] = getattr(est, name + "_")
-    return out
-
-
 def _n_blocks(xy: np.ndarray, size: float) -> int:
     cell = np.floor((xy - xy.min(axis=0)) / size).astype(np.int64)
     return int(np.unique(cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]).size)
@@ -378,8 +351,8 @@ def cross_validate(
         raise bad_input("refit", refit, '"hyperparameters-fixed" or "all"', "pick one")
 
     reference = estimator
-    if refit == REFIT_MODES[0] and not _is_fitted(estimator):
-        reference = _clone(estimator).fit(samples)
+    if refit == REFIT_MODES[0] and not is_fitted(estimator):
+        reference = clone(estimator).fit(samples)
     target_xy = _target_xy(targets, samples.xy)
     target_d = cKDTree(samples.xy).query(target_xy)[0]
     size = None
@@ -401,11 +374,12 @@ def cross_validate(
 
     overrides, hyper = {}, None
     if refit == REFIT_MODES[0]:
-        overrides = _fixed_overrides(reference)
+        overrides = fixed_overrides(reference)
         hyper = {k: overrides[k] for k in ("kernel", "nugget") if k in overrides} or None
         if hyper and "kernel" in hyper:
             hyper["kernel"] = repr(hyper["kernel"])
     mu = np.empty(samples.n)
+    prior = np.zeros(samples.n)  # each fold's prior mean at its held-out samples, m
     sd = np.empty(samples.n)
     latent_var = np.empty(samples.n)
     noise_var = np.empty(samples.n)
@@ -421,9 +395,11 @@ def cross_validate(
             fold_xy = geometry.apply(samples.xy[~test])
             fold_tiles = tiles_reaching_gaps(reference.kernel_, fold_xy, geometry.kernel_matrix)
             fold_overrides = {**overrides, "tiles": fold_tiles}
-        model = _clone(estimator, **fold_overrides).fit(samples.subset(~test))
+        model = clone(estimator, **fold_overrides).fit(samples.subset(~test))
         m, s = model.predict(samples.xy[test], return_std=True)
         mu[test] = m
+        if callable(getattr(model, "mean_", None)):
+            prior[test] = model.mean_(samples.xy[test])
         latent_var[test] = np.asarray(s, dtype=float) ** 2
         if extra_variance is not None:
             latent_var[test] += extra_variance(~test, samples.xy[test], latent_var[test])
@@ -445,9 +421,11 @@ def cross_validate(
     cells = even_stride(target_xy)  # the cells the weights describe: only those measured
     around = neighbourhood_weights(heldout_nd, neighbour_distances(samples.xy, cells))
     # where the noise is independent between held-out neighbours, planes through them
-    # average most of it away before the check removes what is left (heldout_local_fit)
+    # average most of it away before the check removes what is left (heldout_local_fit):
+    # planes through what each fold's prior mean leaves, not through a step it holds
+    # (a BreaklineMean's; docs/terrain.md "The held-out check beside a breakline")
     resid, resid_noise, local = local_plane_residuals(
-        samples.xy, samples.z, mu, noise_var, fold, weights
+        samples.xy, samples.z - prior, mu - prior, noise_var, fold, weights
     )
     boot_rng = np.random.default_rng([seed, 1])  # the bootstrap's own stream of the seed
     calib = map_calibration(
