@@ -49,6 +49,25 @@ _FLAT = 40.0
 WIDTHS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
 
 
+def _plane(xy: np.ndarray) -> np.ndarray | None:
+    """Columns of a plane through samples ``xy`` (m, 2) beside a line, (m, 3): 1, dx, dy
+    about their centre, from 6 samples; (m, 2): 1 and the distance along their own line when
+    4 or more lie on one (a single straight track across the breakline); else None."""
+    c = xy - xy.mean(axis=0)
+    plane = np.column_stack([np.ones(len(xy)), c])
+    rank = np.linalg.matrix_rank(plane)
+    if len(xy) >= 6 and rank == 3:
+        return plane
+    if len(xy) < 4 or rank != 2:
+        return None
+    along = c @ np.linalg.svd(c, full_matrices=False)[2][0]  # on their principal axis, m
+    return np.column_stack([plane[:, 0], along]) if np.ptp(along) > 0 else None
+
+
+def _positive(value: Any) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool) and 0 < value < np.inf
+
+
 def _line_coords(line: Any, j: int) -> np.ndarray:
     coords = getattr(line, "coords", line)  # a shapely LineString, or (k, 2) vertices
     xy = np.asarray(coords, dtype=float)
@@ -110,12 +129,21 @@ class BreaklineMean:
             )
         if isinstance(width, str) and width == "auto":
             self.width, self.widths_ = "auto", None
-        elif isinstance(width, Real) and not isinstance(width, bool) and width > 0:
+        elif _positive(width):
             self.width = float(width)
             self.widths_ = (self.width,) * len(self.lines)
+        elif (
+            np.ndim(width) == 1
+            and len(width) == len(self.lines)
+            and all(_positive(w) for w in width)
+        ):  # one per line: the widths a fit chose, given back (glacimap change rebuilds)
+            self.width = self.widths_ = tuple(float(w) for w in width)
         else:
             raise bad_input(
-                "width", width, '"auto" or a positive step width in m', 'e.g. width="auto"'
+                "width",
+                width,
+                f'"auto", a positive step width in m, or {len(self.lines)} of them (one per line)',
+                'e.g. width="auto"',
             )
         self.coef_: np.ndarray | None = None
         self.coef_cov_: np.ndarray | None = None
@@ -283,8 +311,8 @@ class BreaklineMean:
             both = 0
             for k in np.unique(stretch):
                 m = idx[stretch == k]
-                plane = np.column_stack([np.ones(m.size), xy[m] - xy[m].mean(axis=0)])
-                if m.size < 6 or np.linalg.matrix_rank(plane) < 3:
+                plane = _plane(xy[m])
+                if plane is None:
                     near[m] = False  # too few samples for a plane of their own: not used
                     continue
                 both += int(np.any(D[m, j] > 0) and np.any(D[m, j] < 0))
@@ -305,10 +333,11 @@ class BreaklineMean:
         rows, planes = near["rows"], near["planes"]
         where = np.full(rows.size, -1)
         where[rows] = np.arange(int(rows.sum()))
-        H = np.zeros((int(rows.sum()), 3 * len(planes) + len(self.lines)))
+        cols = np.cumsum([0] + [plane.shape[1] for _, plane in planes])
+        H = np.zeros((int(rows.sum()), cols[-1] + len(self.lines)))
         for k, (idx, plane) in enumerate(planes):
-            H[where[idx], 3 * k : 3 * k + 3] = plane
-        H[:, 3 * len(planes) :] = self.steps(None, widths, D=near["D"])
+            H[where[idx], cols[k] : cols[k + 1]] = plane
+        H[:, cols[-1] :] = self.steps(None, widths, D=near["D"])
         beta, cov = ols_coefficients(H, z[rows])
         rss = float(np.sum((z[rows] - H @ beta) ** 2))
         n = len(self.lines)
@@ -333,7 +362,10 @@ class BreaklineMean:
 
     def __repr__(self) -> str:
         n, base = len(self.lines), self.base
-        width = "width='auto'" if self.width == "auto" else f"width={self.width:g} m"
+        if isinstance(self.width, tuple):
+            width = "width=(" + ", ".join(f"{w:g}" for w in self.width) + ") m"
+        else:
+            width = "width='auto'" if self.width == "auto" else f"width={self.width:g} m"
         if self.widths_ is not None and self.width == "auto":
             width += " (" + ", ".join(f"{w:g}" for w in self.widths_) + " m)"
         if self.coef_ is None:
@@ -342,6 +374,20 @@ class BreaklineMean:
         base = base.with_coefficients(self.coef_[:p], self.coef_cov_[:p, :p])
         steps = format_coefficients(self.coef_names[p:], self.coef_[p:], self.coef_cov_[p:, p:])
         return f"BreaklineMean({n} line(s), {width}, base={base!r}, {steps})"
+
+    def geojson(self) -> dict[str, Any]:
+        """The lines as a GeoJSON Feature (a MultiLineString in the samples' CRS, m) with the
+        steps' ``widths_m`` (None before a fit with ``width="auto"``) in its properties: what
+        a product records so that the mean can be rebuilt (``glacimap change``)."""
+        widths = None if self.widths_ is None else [float(w) for w in self.widths_]
+        return {
+            "type": "Feature",
+            "geometry": {
+                "type": "MultiLineString",
+                "coordinates": [xy.tolist() for xy in self.lines],
+            },
+            "properties": {"widths_m": widths},
+        }
 
     # -- geometry ---------------------------------------------------------------------------
     @staticmethod

@@ -123,3 +123,40 @@ def test_bad_lines_are_refused_by_name(scarp_survey):
     beyond = np.column_stack([np.linspace(-100, 400, 50), np.full(50, 310.0)])  # north of all
     with pytest.raises(InputError, match="both sides"):
         BreaklineMean([beyond]).fit(xy, z)
+
+
+def test_single_straight_tracks_across_the_line_give_the_height():
+    # A rover's crossings: three straight north-south tracks, no samples between them, so
+    # no stretch of the line has samples off one track (no plane beside it). Each track's
+    # samples are then fitted with a line along it: the height is found (made: 2 m on a
+    # tilted plane; before 0.36.0 refused as "no samples on both sides").
+    rng = np.random.default_rng(4)
+    y = np.linspace(0.0, 200.0, 201)  # 1 m apart
+    xy = np.vstack([np.column_stack([np.full(y.size, x), y]) for x in (50.0, 100.0, 150.0)])
+    line = np.array([[-10.0, 90.0], [210.0, 110.0]])  # west -> east: north is its left
+    step = 2.0 * BreaklineMean([line], width=1.0).steps(xy)[:, 0]
+    z = 0.02 * xy[:, 0] + 0.05 * xy[:, 1] + step + rng.normal(0.0, 0.05, len(xy))
+    m = BreaklineMean([line], width=1.0).fit(xy, z)
+    height, sd = m.coef_[-1], np.sqrt(m.coef_cov_[-1, -1])
+    assert abs(height - 2.0) < 4 * sd and sd < 0.05, (height, sd)
+    # ... and the GP with it maps the step: within 0.1 m of the ground at the samples
+    gp = TerrainGP(mean=BreaklineMean([line], width="auto"), seed=0)
+    gp.fit(ElevationSamples(xy, z, 0.05**2))
+    truth = 0.02 * xy[:, 0] + 0.05 * xy[:, 1] + step
+    assert np.sqrt(np.mean((gp.predict(xy) - truth) ** 2)) < 0.1
+
+
+def test_widths_one_per_line_and_the_geojson_record():
+    a = np.array([[-100.0, 0.0], [100.0, 0.0]])
+    b = np.array([[0.0, -100.0], [0.0, 100.0]])
+    m = BreaklineMean([a, b], width=(1.0, 2.5))
+    assert m.widths_ == (1.0, 2.5) and "width=(1, 2.5) m" in repr(m)
+    xy = np.array([[5.0, 2.0]])  # 2 m left of a, 5 m right of b (b runs north: west is left)
+    np.testing.assert_allclose(m.steps(xy)[0], expit([2.0 / 1.0, -5.0 / 2.5]), atol=1e-15)
+    rec = m.geojson()
+    assert rec["geometry"]["coordinates"] == [a.tolist(), b.tolist()]
+    assert rec["properties"]["widths_m"] == [1.0, 2.5]
+    assert BreaklineMean([a]).geojson()["properties"]["widths_m"] is None  # auto, unfitted
+    for bad in ((1.0,), (1.0, 0.0), (1.0, float("nan")), (1.0, True)):
+        with pytest.raises(InputError, match="width"):
+            BreaklineMean([a, b], width=bad)
