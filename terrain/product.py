@@ -110,6 +110,8 @@ def gp_provenance(gp: Any) -> dict[str, Any]:
         "kernel_selection": json.dumps(json_rows(gp.kernel_scores_)),
         "kernel_windows": "none" if wp is None else wp.describe(),
         "mean_coefficients": json.dumps(mean_coefficients(gp.mean_)),
+        # the lines of a BreaklineMean and their widths ("" without): a GeoJSON Feature
+        "breaklines": json.dumps(gp.mean_.geojson()) if hasattr(gp.mean_, "geojson") else "",
         "degenerate_fit": int(gp.degenerate_),
         "seed": int(gp.seed),
         "software": f"glacimap {software_version()}",

@@ -23,6 +23,7 @@ from typer.testing import CliRunner
 
 from survey.lawnmower import lawnmower
 from terrain import (
+    BreaklineMean,
     ElevationSamples,
     Grid,
     default_outline,
@@ -47,8 +48,9 @@ runner = CliRunner()
 SHARED_SD = 0.085  # m, each survey's shared offset 1-sigma (benchmarks/change.py)
 
 
-def _epoch(folder, truth, path, seed, offset, grid, settings):
-    """One epoch as a product folder: samples.csv, prior.tif, product.nc."""
+def _epoch(folder, truth, path, seed, offset, grid, settings, line=None):
+    """One epoch as a product folder: samples.csv, prior.tif, product.nc; with ``line``
+    (vertices, m) the prior DEM is the base of a ``BreaklineMean`` across it."""
     folder.mkdir()
     rng = np.random.default_rng(seed)
     s, _ = sample_along_path(truth, path, 300, seed=rng)
@@ -57,10 +59,11 @@ def _epoch(folder, truth, path, seed, offset, grid, settings):
     pds = prior.to_dataset(name="elevation")
     pds.attrs = dict(prior.attrs)
     write_cog(pds, folder / "prior.tif", bands=[("elevation", "prior DEM")])
+    mean = prior_mean(folder / "prior.tif", settings)
     rec = reconstruct_stage(
         s,
         grid,
-        prior_mean(folder / "prior.tif", settings),
+        mean if line is None else BreaklineMean([line], base=mean),
         settings,
         seed,
         shared_z_std=SHARED_SD,
@@ -81,15 +84,21 @@ def _epoch(folder, truth, path, seed, offset, grid, settings):
     return rec
 
 
-def _make_epochs(d, settings):
-    """Two epochs of the default site (before, after a known change) as product folders."""
+def _make_epochs(d, settings, line=None):
+    """Two epochs of the default site (before, after a known change) as product folders;
+    with ``line``, a 3 m step across it (up to its left) in both and in their means."""
     truth = default_site(resolution=4.0)
     outline = default_outline(DEFAULT_SITE_BOUNDS)
     after = second_epoch(truth, outline, seed=3)
+    if line is not None:
+        X, Y = np.meshgrid(truth.x.values, truth.y.values)
+        xy = np.column_stack([X.ravel(), Y.ravel()])
+        step = 3.0 * BreaklineMean([line], width=2.0).steps(xy)[:, 0].reshape(X.shape)
+        truth, after = truth + step, after + step
     path = lawnmower(DEFAULT_SITE_BOUNDS, 4, margin=20.0).waypoints
     grid = Grid.from_bounds(DEFAULT_SITE_BOUNDS, 10.0)  # 60 x 60 cells
-    rec_b = _epoch(d / "before", truth, path, 1, 0.05, grid, settings)
-    rec_a = _epoch(d / "after", after, path, 2, -0.1, grid, settings)
+    rec_b = _epoch(d / "before", truth, path, 1, 0.05, grid, settings, line)
+    rec_a = _epoch(d / "after", after, path, 2, -0.1, grid, settings, line)
     gpkg = _write_polygon(d / "glacier.gpkg", outline)
     W = outline_weights(grid, outline)
     true_v = float(np.sum(W * (after - truth).interp(x=grid.x, y=grid.y).values))
@@ -227,3 +236,45 @@ def test_cli_gp_route_on_tiled_products_matches_the_library(tiled_epochs, tmp_pa
     ref = volume_change(diff, outline, models=(rec_b.gp, rec_a.gp))
     assert vol["volume_m3"] == pytest.approx(ref.volume_m3, rel=1e-9)
     assert vol["volume_std_m3"] == pytest.approx(ref.volume_std_m3, rel=1e-6)
+
+
+@pytest.fixture(scope="module")
+def breakline_epochs(tmp_path_factory):
+    """The two epochs with a 3 m step across the site, mapped with a ``BreaklineMean`` whose
+    base is the prior DEM (width chosen by the fit): the product records the lines and
+    widths (``breaklines``), from which the CLI rebuilds the mean."""
+    settings = load_scenario(overrides={"reconstruct": {"max_fit_samples": 300}})
+    w, s, e, n = DEFAULT_SITE_BOUNDS
+    line = np.array([[w - 10.0, 0.5 * (s + n) - 40.0], [e + 10.0, 0.5 * (s + n) + 40.0]])
+    return _make_epochs(tmp_path_factory.mktemp("gp_epochs_breakline"), settings, line)
+
+
+def test_cli_gp_route_rebuilds_a_breakline_mean(breakline_epochs, tmp_path):
+    # Reference: the library's GP route on the in-memory GPs, as above.
+    d, outline, gpkg, rec_b, rec_a, true_v = breakline_epochs
+    ds = xr.open_dataset(d / "before" / "product.nc").load()
+    feature = json.loads(ds.attrs["breaklines"])
+    assert feature["geometry"]["type"] == "MultiLineString"
+    assert feature["properties"]["widths_m"] == list(rec_b.gp.mean_.widths_)
+    gp, note = rebuild_gp(ds, locate_product(d / "before", None, "BEFORE"))
+    assert gp is not None, note
+    assert type(gp.mean_).__name__ == "BreaklineMean" and gp.mean_.widths_ == rec_b.gp.mean_.widths_
+    np.testing.assert_allclose(gp.mean_.coef_, rec_b.gp.mean_.coef_, rtol=1e-9)
+    out = tmp_path / "out"
+    res = _change(d, gpkg, out)
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    assert vol["route"] == "gp_structure", vol["route_reason"]
+    diff = difference(rec_b.product, rec_a.product, coregister=False)
+    ref = volume_change(diff, outline, models=(rec_b.gp, rec_a.gp))
+    assert vol["volume_m3"] == pytest.approx(ref.volume_m3, rel=1e-9)
+    assert vol["volume_std_m3"] == pytest.approx(ref.volume_std_m3, rel=1e-6)
+    assert abs(vol["volume_m3"] - true_v) < 3 * vol["volume_std_m3"]
+    # a product that does not record its lines (made before 0.36.0): variogram, said why
+    old = tmp_path / "old"
+    shutil.copytree(d / "before", old)
+    ds.attrs["breaklines"] = ""
+    (old / "product.nc").unlink()
+    ds.to_netcdf(old / "product.nc", engine="scipy")
+    gp, note = rebuild_gp(ds, locate_product(old, None, "BEFORE"))
+    assert gp is None and "breaklines are not recorded" in note

@@ -155,9 +155,18 @@ def _prior_path(mean_repr: str, folder: Path | None, given: Path | None) -> Path
     )
 
 
-def _mean_from_provenance(mean_repr: str, folder: Path | None, prior: Path | None) -> Any:
-    from terrain import RasterMean
+def _mean_from_provenance(
+    mean_repr: str, folder: Path | None, prior: Path | None, breaklines: str = ""
+) -> Any:
+    from terrain import BreaklineMean, RasterMean
 
+    if mean_repr.startswith("BreaklineMean("):  # the base's repr follows "base="
+        if not breaklines:
+            raise InputError("the map's breaklines are not recorded (a product before 0.36.0)")
+        feature = json.loads(breaklines)
+        base = _mean_from_provenance(mean_repr.split("base=", 1)[1], folder, prior)
+        lines = [np.asarray(c, float) for c in feature["geometry"]["coordinates"]]
+        return BreaklineMean(lines, base=base, width=feature["properties"]["widths_m"])
     if mean_repr.startswith("ConstantMean(value=None"):
         return "constant"
     if mean_repr.startswith("RasterMean("):
@@ -169,7 +178,7 @@ def _mean_from_provenance(mean_repr: str, folder: Path | None, prior: Path | Non
             cells=(int(cells.group(1)), int(cells.group(2))) if cells else None,
         )
     raise InputError(f"mean {mean_repr[:60]!r} cannot be rebuilt from a file (not a fitted "
-                     "constant or a RasterMean)")  # fmt: skip
+                     "constant, a RasterMean or a BreaklineMean)")  # fmt: skip
 
 
 def rebuild_gp(
@@ -212,9 +221,11 @@ def rebuild_gp(
         nugget = float(json.loads(attrs["hyperparameters"])["nugget"])
         geometry = json.loads(attrs.get("anisotropy", "{}"))  # none recorded: isotropic
         anisotropy = Anisotropy(geometry.get("azimuth_deg", 0.0), geometry.get("ratio", 1.0))
-        mean = _mean_from_provenance(str(attrs["mean_function"]), where.folder, prior)
+        mean = _mean_from_provenance(
+            str(attrs["mean_function"]), where.folder, prior, str(attrs.get("breaklines", ""))
+        )
         samples = read_samples(where.samples).samples
-    except (InputError, KeyError, ValueError) as exc:
+    except (InputError, KeyError, TypeError, ValueError) as exc:
         return None, f"{where.raster}: {exc}"
     grid = Grid.from_dataarray(north_up(product))
     if samples.crs is None or not samples.crs.equals(grid.crs, ignore_axis_order=True):
