@@ -60,6 +60,31 @@ def test_geojson_and_wkt_give_the_same_lines(tmp_path):
     np.testing.assert_array_equal(b[0], line)
 
 
+def test_a_geopackage_in_lon_lat_is_reprojected_and_bare_lon_lat_refused(tmp_path):
+    # Reference: pyproj's own transform of the same vertices (the file stores lon/lat).
+    import pyogrio
+    import shapely
+    from pyproj import Transformer
+
+    line = _line()
+    to_ll = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True)
+    lon, lat = to_ll.transform(line[:, 0], line[:, 1])
+    gpkg = tmp_path / "cliff.gpkg"
+    wkb = np.array([shapely.to_wkb(shapely.LineString(np.column_stack([lon, lat])))], object)
+    pyogrio.raw.write(gpkg, wkb, [], [], geometry_type="LineString", crs="EPSG:4326")
+    (got,) = read_breaklines(gpkg, CRS)
+    np.testing.assert_allclose(got, line, atol=1e-6)  # m: the round trip through lon/lat
+    # the same lon/lat as WKT declares no CRS: refused for a projected map, by name
+    wkt = tmp_path / "cliff.wkt"
+    wkt.write_text(shapely.to_wkt(shapely.LineString(np.column_stack([lon, lat]))))
+    with pytest.raises(InputError, match="--breaklines.*longitude / latitude"):
+        read_breaklines(wkt, CRS)
+    # a GeoJSON without a crs member holding map coordinates (GDAL calls it WGS 84): as is
+    gj = tmp_path / "cliff.geojson"
+    gj.write_text(json.dumps({"type": "LineString", "coordinates": line.tolist()}))
+    np.testing.assert_array_equal(read_breaklines(gj, CRS)[0], line)
+
+
 def test_cli_fits_the_step_and_records_it(scarp_csv, tmp_path):
     gj = tmp_path / "cliff.geojson"
     gj.write_text(json.dumps({"type": "LineString", "coordinates": _line().tolist()}))
@@ -78,7 +103,7 @@ def test_cli_fits_the_step_and_records_it(scarp_csv, tmp_path):
 @pytest.mark.parametrize(
     ("text", "match"),
     [
-        (None, "an existing GeoJSON or WKT file"),
+        (None, "an existing vector file"),
         ("POLYGON ((0 0, 1 0, 1 1, 0 0))", "LineStrings"),
         ("not a geometry", "does not parse"),
         ('{"type": "FeatureCollection", "features": []}', "at least one line"),

@@ -302,8 +302,8 @@ def _process(
         resolution = float(settings["reconstruct"]["resolution_m"])
         if cps is not None and bounds is not None:  # on the map? known before localizing
             require_checkpoints_on(cps, map_grid(bounds, resolution, mlog.crs))
-        # a step across each breakline (a GeoJSON/WKT path or vertex arrays; the map's CRS)
-        mean = with_breaklines(prior_mean(prior, settings), *breaklines)
+        # a step across each breakline (a vector file, read in the map's CRS, or vertices)
+        mean = with_breaklines(prior_mean(prior, settings), *breaklines, crs=mlog.crs)
         # which files made the map, by name and SHA-256 (every product's metadata)
         log_record = None if isinstance(log, MeasurementLog) else input_record("log", log)
         prior_record = input_record("prior", prior)

@@ -61,30 +61,17 @@ def read_dem(path: Path, field: str):
 
 
 def read_polygons(path: Path, field: str, crs: Any) -> tuple[Any, str]:
-    """Polygons of a vector file (GeoPackage, GeoJSON, Shapefile) in ``crs``; a note says
-    whether they were reprojected."""
-    import pyogrio
+    """Polygons of a vector file (GeoPackage, GeoJSON, Shapefile) merged, in ``crs``; a note
+    says whether they were reprojected (:func:`toolkit.vector_io.read_geometries`)."""
     import shapely
-    from pyproj import CRS, Transformer
 
-    if not path.is_file():
-        raise bad_input(field, str(path), "an existing vector file", "check the path")
-    try:
-        info = pyogrio.read_info(path)
-        _, _, wkb, _ = pyogrio.raw.read(path)
-    except Exception as exc:  # pyogrio's DataSourceError and friends
-        raise bad_input(field, str(path), "a GeoPackage / GeoJSON GDAL can read", str(exc)) from exc
-    geoms = [g for g in shapely.from_wkb(wkb) if g is not None and g.area > 0]
+    from ..vector_io import read_geometries
+
+    geoms, note = read_geometries(path, field, crs)
+    geoms = [g for g in geoms if g.area > 0]
     if not geoms:
         raise bad_input(field, str(path), "at least one polygon", "draw the outline as polygons")
-    merged = shapely.union_all(geoms)
-    src = CRS.from_user_input(info["crs"]) if info.get("crs") else None
-    note = f"{field}: same CRS"
-    if src is not None and not src.equals(CRS.from_user_input(crs), ignore_axis_order=True):
-        t = Transformer.from_crs(src, CRS.from_user_input(crs), always_xy=True)
-        merged = shapely.ops.transform(t.transform, merged)
-        note = f"{field}: reprojected from {src.to_string()}"
-    return merged, note
+    return shapely.union_all(geoms), note
 
 
 def change_command(

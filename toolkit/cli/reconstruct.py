@@ -206,7 +206,7 @@ def _reconstruct_csv(
     if lines is not None:  # a step across each breakline, read before (fails fast)
         from ..breaklines_io import with_breaklines
 
-        mean = with_breaklines(mean, lines[0], lines[1])
+        mean = with_breaklines(mean, lines[2], lines[1], crs=data.crs)  # the map's CRS
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):

@@ -1,0 +1,95 @@
+"""Geometries of a vector file in the map's CRS: glacier outlines and stable ground
+(``glacimap change``), breaklines (``reconstruct`` / ``process --breaklines``).
+
+Any vector file GDAL reads (GeoPackage, GeoJSON, Shapefile, KML...) through pyogrio, and
+reprojected with pyproj from the CRS it declares; a WKT text file (one geometry per line)
+through shapely, taken to be in the map's CRS (WKT carries none). One trap is handled: a
+GeoJSON file without a ``crs`` member is declared WGS 84 by GDAL (RFC 7946), whatever its
+coordinates are. Coordinates that cannot be longitude / latitude are then read in the map's
+CRS, and the note says so. The other way round, geometries whose every coordinate could be
+longitude / latitude while the map's CRS is projected and the file declares nothing are
+refused by name: they would lie thousands of kilometres off the map.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from terrain.errors import bad_input
+
+__all__ = ["read_geometries"]
+
+_WKT_TYPES = (b"POINT", b"LINESTRING", b"POLYGON", b"MULTI", b"GEOMETRYCOLLECTION")
+
+
+def _is_wkt(path: Path) -> bool:
+    """Text that starts with a WKT keyword (``LINESTRING (...``), whatever the suffix."""
+    head = path.read_bytes()[:64].lstrip().upper()
+    return head.startswith(_WKT_TYPES)
+
+
+def _could_be_lonlat(geoms: list) -> bool:
+    import shapely
+
+    xy = np.vstack([shapely.get_coordinates(g) for g in geoms] or [np.zeros((0, 2))])
+    return bool(xy.size) and bool(
+        np.all(np.abs(xy[:, 0]) <= 180) and np.all(np.abs(xy[:, 1]) <= 90)
+    )
+
+
+def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]:
+    """The geometries of ``path`` (shapely, file order; empty and missing ones left out),
+    in ``crs`` when given, and a note on how they were read (``"<field>: same CRS"``,
+    ``"... reprojected from EPSG:4326"``, ``"... no CRS declared: read in the map's"``).
+
+    Raises an ``InputError`` naming ``field`` when the file is missing or does not parse,
+    or when its coordinates look like longitude / latitude for a projected ``crs`` and it
+    declares no CRS.
+    """
+    import shapely
+    from pyproj import CRS, Transformer
+    from shapely.ops import transform
+
+    path = Path(path)
+    if not path.is_file():
+        raise bad_input(field, str(path), "an existing vector file (GeoJSON, GeoPackage, "
+                        "Shapefile, WKT...)", "check the path")  # fmt: skip
+    declared = None
+    try:
+        if _is_wkt(path):
+            text = path.read_text(encoding="utf-8")
+            geoms = [shapely.from_wkt(t) for t in text.splitlines() if t.strip()]
+        else:
+            import pyogrio
+
+            info = pyogrio.read_info(path)
+            wkb = pyogrio.raw.read(path)[2] if info["features"] else []
+            geoms = list(shapely.from_wkb(wkb)) if len(wkb) else []
+            declared = CRS.from_user_input(info["crs"]) if info.get("crs") else None
+    except Exception as exc:  # shapely's GEOSException, pyogrio's DataSourceError, ...
+        raise bad_input(field, path.name, "a vector file GDAL reads, or WKT lines",
+                        f"the file does not parse: {exc}") from exc  # fmt: skip
+    geoms = [g for g in geoms if g is not None and not g.is_empty]
+    if crs is None or not geoms:
+        return geoms, f"{field}: read as is"
+    target = CRS.from_user_input(crs)
+    if declared is not None and declared.is_geographic and not _could_be_lonlat(geoms):
+        declared = None  # GeoJSON's RFC 7946 default, not the file's coordinates
+    if declared is None:
+        if target.is_projected and _could_be_lonlat(geoms):
+            raise bad_input(
+                field,
+                f"{path.name}: every coordinate within longitude / latitude bounds",
+                f"coordinates in the map's CRS ({target.to_string()}), or a file that "
+                "declares its CRS",
+                "reproject it (e.g. ogr2ogr -t_srs <map CRS>) or save it as a GeoPackage",
+            )
+        return geoms, f"{field}: no CRS declared: read in the map's CRS"
+    if declared.equals(target, ignore_axis_order=True):
+        return geoms, f"{field}: same CRS"
+    t = Transformer.from_crs(declared, target, always_xy=True)
+    geoms = [transform(t.transform, g) for g in geoms]
+    return geoms, f"{field}: reprojected from {declared.to_string()}"
