@@ -12,8 +12,9 @@ Breaklines = Annotated[
     Path | None,
     typer.Option(
         "--breaklines",
-        help="GeoJSON or WKT lines (the map's CRS) the ground steps across: an ice cliff, "
-        "a moraine's edge; each crosses the survey. Step heights fitted with their 1-sigma.",
+        help="Lines the ground steps across (an ice cliff, a moraine's edge), each across "
+        "the survey: a GeoPackage, GeoJSON, Shapefile... (reprojected from its CRS) or WKT "
+        "(the map's CRS). Step heights fitted with their 1-sigma.",
     ),
 ]
 BreaklineWidth = Annotated[
