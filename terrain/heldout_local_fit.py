@@ -110,7 +110,10 @@ def local_plane_residuals(
     xy : ndarray of shape (n, 2)
         Sample locations, m.
     z : ndarray of shape (n,)
-        Sample elevations, m.
+        Sample elevations, m. :func:`terrain.cross_validate` passes them less each fold's
+        prior mean, and ``mu`` less the same: the planes then fit what the mean leaves (not
+        a breakline's step, nor the curvature a DEM prior already holds), and the residuals
+        are unchanged where no plane is used.
     mu : ndarray of shape (n,)
         Each sample's held-out prediction (the map of the folds without it), m.
     noise_var : ndarray of shape (n,)
