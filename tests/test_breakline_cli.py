@@ -74,6 +74,11 @@ def test_a_geopackage_in_lon_lat_is_reprojected_and_bare_lon_lat_refused(tmp_pat
     pyogrio.raw.write(gpkg, wkb, [], [], geometry_type="LineString", crs="EPSG:4326")
     (got,) = read_breaklines(gpkg, CRS)
     np.testing.assert_allclose(got, line, atol=1e-6)  # m: the round trip through lon/lat
+    # a feature without a geometry is left out, counted, never silently
+    pyogrio.raw.write(gpkg, np.array([wkb[0], None], object), [], [],
+                      geometry_type="LineString", crs="EPSG:4326")  # fmt: skip
+    with pytest.warns(UserWarning, match="1 empty geometries left out"):
+        assert len(read_breaklines(gpkg, CRS)) == 1
     # the same lon/lat as WKT declares no CRS: refused for a projected map, by name
     wkt = tmp_path / "cliff.wkt"
     wkt.write_text(shapely.to_wkt(shapely.LineString(np.column_stack([lon, lat]))))

@@ -9,6 +9,7 @@ Each line must cross the survey (terrain/breakline.py).
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,9 @@ def read_breaklines(path: Path, crs: Any = None) -> list[np.ndarray]:
     holds no line, holds another geometry (a polygon's outline is not a step), or holds
     longitude / latitude for a projected ``crs`` without declaring it.
     """
-    geoms, _ = read_geometries(Path(path), FIELD, crs)
+    geoms, note = read_geometries(Path(path), FIELD, crs)
+    if "empty geometries" in note:  # counted, never silently dropped
+        warnings.warn(note, stacklevel=2)
     lines: list[np.ndarray] = []
     for g in geoms:
         for part in getattr(g, "geoms", [g]):

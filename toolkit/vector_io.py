@@ -41,9 +41,10 @@ def _could_be_lonlat(geoms: list) -> bool:
 
 
 def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]:
-    """The geometries of ``path`` (shapely, file order; empty and missing ones left out),
-    in ``crs`` when given, and a note on how they were read (``"<field>: same CRS"``,
-    ``"... reprojected from EPSG:4326"``, ``"... no CRS declared: read in the map's"``).
+    """The geometries of ``path`` (shapely, file order), in ``crs`` when given, and a note
+    on how they were read (``"<field>: same CRS"``, ``"... reprojected from EPSG:4326"``,
+    ``"... no CRS declared: read in the map's CRS"``), which counts the empty or missing
+    geometries left out.
 
     Raises an ``InputError`` naming ``field`` when the file is missing or does not parse,
     or when its coordinates look like longitude / latitude for a projected ``crs`` and it
@@ -72,9 +73,13 @@ def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]
     except Exception as exc:  # shapely's GEOSException, pyogrio's DataSourceError, ...
         raise bad_input(field, path.name, "a vector file GDAL reads, or WKT lines",
                         f"the file does not parse: {exc}") from exc  # fmt: skip
-    geoms = [g for g in geoms if g is not None and not g.is_empty]
+    kept = [g for g in geoms if g is not None and not g.is_empty]
+    left = (
+        f" ({len(geoms) - len(kept)} empty geometries left out)" if len(kept) < len(geoms) else ""
+    )
+    geoms = kept
     if crs is None or not geoms:
-        return geoms, f"{field}: read as is"
+        return geoms, f"{field}: read as is{left}"
     target = CRS.from_user_input(crs)
     if declared is not None and declared.is_geographic and not _could_be_lonlat(geoms):
         declared = None  # GeoJSON's RFC 7946 default, not the file's coordinates
@@ -87,9 +92,9 @@ def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]
                 "declares its CRS",
                 "reproject it (e.g. ogr2ogr -t_srs <map CRS>) or save it as a GeoPackage",
             )
-        return geoms, f"{field}: no CRS declared: read in the map's CRS"
+        return geoms, f"{field}: no CRS declared: read in the map's CRS{left}"
     if declared.equals(target, ignore_axis_order=True):
-        return geoms, f"{field}: same CRS"
+        return geoms, f"{field}: same CRS{left}"
     t = Transformer.from_crs(declared, target, always_xy=True)
     geoms = [transform(t.transform, g) for g in geoms]
-    return geoms, f"{field}: reprojected from {declared.to_string()}"
+    return geoms, f"{field}: reprojected from {declared.to_string()}{left}"
