@@ -105,6 +105,31 @@ def test_cli_fits_the_step_and_records_it(scarp_csv, tmp_path):
     assert inputs["breaklines"] == "cliff.geojson"
 
 
+def test_cli_reads_a_lon_lat_geopackage_as_the_same_lines(scarp_csv, tmp_path):
+    # Reference: the same lines given in the map's CRS (GeoJSON, the test above): the map
+    # made from a GeoPackage in EPSG:4326 has the same step height to 1e-4 m.
+    import pyogrio
+    import shapely
+    from pyproj import Transformer
+
+    line = _line()
+    lon, lat = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True).transform(*line.T)
+    gpkg = tmp_path / "cliff.gpkg"
+    wkb = np.array([shapely.to_wkb(shapely.LineString(np.column_stack([lon, lat])))], object)
+    pyogrio.raw.write(gpkg, wkb, [], [], geometry_type="LineString", crs="EPSG:4326")
+    gj = tmp_path / "cliff.geojson"
+    gj.write_text(json.dumps({"type": "LineString", "coordinates": line.tolist()}))
+    heights = []
+    for path in (gj, gpkg):
+        out = tmp_path / path.suffix[1:]
+        res = runner.invoke(app, ["reconstruct", str(scarp_csv), "--crs", CRS, "--resolution",
+                                  "20", "--breaklines", str(path), "--out", str(out)])  # fmt: skip
+        assert res.exit_code == 0, res.output
+        mean = xr.open_dataset(out / "product.nc").attrs["mean_function"]
+        heights.append(float(mean.split("step1_m=")[1].split()[0]))
+    assert heights[1] == pytest.approx(heights[0], abs=1e-4)
+
+
 @pytest.mark.parametrize(
     ("text", "match"),
     [
