@@ -199,3 +199,9 @@ def test_process_takes_breaklines_and_finds_no_step_where_there_is_none(tmp_path
                               "--out", str(never)])  # fmt: skip
     assert isinstance(res.exception, InputError) and "--breaklines" in str(res.exception)
     assert not never.exists()
+    # lon/lat without a CRS for the field folder's UTM map: refused by name, nothing written
+    bad.write_text("LINESTRING (-135.4 58.4, -135.3 58.41)\n")
+    res = runner.invoke(app, ["process", str(example), "--breaklines", str(bad),
+                              "--out", str(never)])  # fmt: skip
+    assert isinstance(res.exception, InputError) and "longitude / latitude" in str(res.exception)
+    assert not never.exists()
