@@ -125,6 +125,8 @@ def test_cli_reads_a_lon_lat_geopackage_as_the_same_lines(scarp_csv, tmp_path):
         res = runner.invoke(app, ["reconstruct", str(scarp_csv), "--crs", CRS, "--resolution",
                                   "20", "--breaklines", str(path), "--out", str(out)])  # fmt: skip
         assert res.exit_code == 0, res.output
+        said = "reprojected from EPSG:4326" if path is gpkg else "no CRS declared"
+        assert f"breaklines: 1 line(s) from {path.name}; {said}" in " ".join(res.output.split())
         mean = xr.open_dataset(out / "product.nc").attrs["mean_function"]
         heights.append(float(mean.split("step1_m=")[1].split()[0]))
     assert heights[1] == pytest.approx(heights[0], abs=1e-4)

@@ -24,10 +24,13 @@ __all__ = ["breakline_width", "read_breaklines", "with_breaklines"]
 FIELD = "--breaklines"
 
 
-def read_breaklines(path: Path, crs: Any = None) -> list[np.ndarray]:
+def read_breaklines(
+    path: Path, crs: Any = None, notes: list[str] | None = None
+) -> list[np.ndarray]:
     """The lines of ``path`` as vertex arrays, each of shape (k, 2), in file order, in
     ``crs`` when given (reprojected from the CRS the file declares:
-    :func:`toolkit.vector_io.read_geometries`).
+    :func:`toolkit.vector_io.read_geometries`); ``notes``, when given, gains a sentence on
+    how they were read (for the console).
 
     Raises an ``InputError`` naming ``--breaklines`` when the file is missing or unreadable,
     holds no line, holds another geometry (a polygon's outline is not a step), or holds
@@ -49,20 +52,28 @@ def read_breaklines(path: Path, crs: Any = None) -> list[np.ndarray]:
             lines.append(np.asarray(part.coords, dtype=float)[:, :2])
     if not lines:
         raise bad_input(FIELD, Path(path).name, "at least one line", "or leave --breaklines out")
+    if notes is not None:
+        notes.append(f"{len(lines)} line(s) from {Path(path).name}; {note.split(': ', 1)[1]}")
     return lines
 
 
-def with_breaklines(mean: Any, lines: Any, width: float | str = "auto", crs: Any = None) -> Any:
+def with_breaklines(
+    mean: Any,
+    lines: Any,
+    width: float | str = "auto",
+    crs: Any = None,
+    notes: list[str] | None = None,
+) -> Any:
     """``mean`` with a step across each breakline (``terrain.BreaklineMean``), or ``mean``
     itself when ``lines`` is None. ``lines``: a vector file (:func:`read_breaklines`, read
-    in ``crs``: the map's) or vertex arrays already in it; ``width``: ``"auto"`` or metres
-    (:func:`breakline_width`)."""
+    in ``crs``: the map's, its reading said in ``notes``) or vertex arrays already in it;
+    ``width``: ``"auto"`` or metres (:func:`breakline_width`)."""
     if lines is None:
         return mean
     from terrain import BreaklineMean
 
     if isinstance(lines, str | Path):
-        lines = read_breaklines(Path(lines), crs)
+        lines = read_breaklines(Path(lines), crs, notes)
     return BreaklineMean(lines, base=mean, width=breakline_width(width))
 
 

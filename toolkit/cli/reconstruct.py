@@ -206,7 +206,9 @@ def _reconstruct_csv(
     if lines is not None:  # a step across each breakline, read before (fails fast)
         from ..breaklines_io import with_breaklines
 
-        mean = with_breaklines(mean, lines[2], lines[1], crs=data.crs)  # the map's CRS
+        notes: list[str] = []
+        mean = with_breaklines(mean, lines[2], lines[1], crs=data.crs, notes=notes)
+        console.print(f"breaklines: {escape(notes[0])}")  # e.g. reprojected from EPSG:4326
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):
