@@ -19,7 +19,7 @@ from terrain.errors import bad_input
 
 from .vector_io import read_geometries
 
-__all__ = ["breakline_width", "read_breaklines", "with_breaklines"]
+__all__ = ["breakline_width", "check_breakline_options", "read_breaklines", "with_breaklines"]
 
 FIELD = "--breaklines"
 
@@ -91,3 +91,12 @@ def breakline_width(value: Any) -> float | str:
             "--breakline-width", value, '"auto" or a positive width in m', "e.g. auto or 1.5"
         )
     return width
+
+
+def check_breakline_options(path: Path, width: Any) -> float | str:
+    """``--breaklines`` and ``--breakline-width`` checked before any work (the file parses
+    and holds lines; the width is valid): the width as :func:`breakline_width` gives it. The
+    lines themselves are read again in the map's CRS when it is known (:func:`with_breaklines`).
+    """
+    read_breaklines(Path(path))
+    return breakline_width(width)

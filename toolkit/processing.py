@@ -259,9 +259,10 @@ def process(
     on_frames : callable, optional
         ``on_frames(k, K)`` while the front-end tracks the frames (ingest).
     breaklines : path or sequence of (k, 2) arrays, optional
-        Lines the ground steps across (an ice cliff, a moraine's edge), in the map's CRS,
-        each across the survey: a GeoJSON/WKT file or vertex arrays (``terrain.BreaklineMean``
-        on the prior mean; heights fitted).
+        Lines the ground steps across (an ice cliff, a moraine's edge), each across the
+        survey: a vector file (reprojected to the map's CRS from the CRS it declares; WKT in
+        the map's CRS) or vertex arrays in the map's CRS (``terrain.BreaklineMean`` on the
+        prior mean; heights fitted).
     breakline_width : float or "auto"
         Scale of each step's logistic, m; ``"auto"``: each line's own, chosen by the fit.
 

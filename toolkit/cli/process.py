@@ -57,11 +57,9 @@ def process_command(
     console = Console()
     settings = load_scenario(config)  # bad settings fail before any work
     if breaklines is not None:  # a bad file fails before any work too
-        from toolkit.breaklines_io import breakline_width as width_option
-        from toolkit.breaklines_io import read_breaklines
+        from toolkit.breaklines_io import check_breakline_options
 
-        read_breaklines(breaklines)
-        width_option(breakline_width)
+        check_breakline_options(breaklines, breakline_width)
     if images:
         _say_frames(console, log_dir)
     with stage_progress(console, PROCESS_STAGES) as (on_stage, on_progress):

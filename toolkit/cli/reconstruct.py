@@ -133,11 +133,10 @@ def reconstruct(
         if anisotropy is not None:  # checked by the scenario's own rule (config.py)
             overrides["reconstruct"] = {"anisotropy": anisotropy}
         lines = None
-        if breaklines is not None:  # read before the fit: a bad file fails in milliseconds
-            from ..breaklines_io import breakline_width as width_option
-            from ..breaklines_io import read_breaklines
+        if breaklines is not None:  # checked before the fit: a bad file fails in milliseconds
+            from ..breaklines_io import check_breakline_options
 
-            lines = (read_breaklines(breaklines), width_option(breakline_width), breaklines)
+            lines = (breaklines, check_breakline_options(breaklines, breakline_width))
         _reconstruct_csv(
             samples,
             out_dir,
@@ -203,11 +202,11 @@ def _reconstruct_csv(
     if footprint:  # said before the fit: a big map of few samples is long to wait for
         console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
     mean = prior_mean(prior, settings)
-    if lines is not None:  # a step across each breakline, read before (fails fast)
+    if lines is not None:  # a step across each breakline, read now in the map's CRS
         from ..breaklines_io import with_breaklines
 
         notes: list[str] = []
-        mean = with_breaklines(mean, lines[2], lines[1], crs=data.crs, notes=notes)
+        mean = with_breaklines(mean, *lines, crs=data.crs, notes=notes)
         console.print(f"breaklines: {escape(notes[0])}")  # e.g. reprojected from EPSG:4326
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
@@ -246,7 +245,7 @@ def _reconstruct_csv(
                 input_record("samples", samples),
                 input_record("prior", prior),
                 input_record("checkpoints", cps),
-                input_record("breaklines", None if lines is None else lines[2]),
+                input_record("breaklines", None if lines is None else lines[0]),
             )
             if r is not None
         ]
