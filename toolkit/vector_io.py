@@ -81,10 +81,11 @@ def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]
     if crs is None or not geoms:
         return geoms, f"{field}: read as is{left}"
     target = CRS.from_user_input(crs)
-    if declared is not None and declared.is_geographic and not _could_be_lonlat(geoms):
+    lonlat = _could_be_lonlat(geoms)
+    if declared is not None and declared.is_geographic and not lonlat:
         declared = None  # GeoJSON's RFC 7946 default, not the file's coordinates
     if declared is None:
-        if target.is_projected and _could_be_lonlat(geoms):
+        if target.is_projected and lonlat:
             raise bad_input(
                 field,
                 f"{path.name}: every coordinate within longitude / latitude bounds",
