@@ -11,6 +11,7 @@
     python benchmarks/real_terrain.py --scattered 0.02        # the rover kept to its tracks
     python benchmarks/real_terrain.py --sites my_dem.tif --sizes 3000 50000   # a DEM of yours
     python benchmarks/real_terrain.py --feature scarp         # a 6 m scarp across the tracks
+    python benchmarks/real_terrain.py --feature scarp-end     # the same, dying out inside
 
 Sites: ``scripts/real_dems.glacier_site`` (a window of a real DEM — olinda, rm, glacier,
 prism, lux, matplotlib's jacksboro and topobathy, spatstat's bei, gorillas and clm and R's
@@ -26,10 +27,13 @@ time and peak RSS are its own; one at a time: 2 cores):
 ``glacimap_dem``  the same with ``mean=terrain.coarse_dem(truth)`` (the 8 x 8 prior).
 ``glacimap_pycno`` the same 8 x 8 prior read as area means:
                   ``mean=terrain.PycnophylacticMean(coarse_dem(truth))``.
-``glacimap_breakline`` the default estimator told the line of a ``--feature scarp`` or
-                  ``scarp-along``: ``mean=terrain.BreaklineMean([line])`` (a constant plus
-                  the step, its width chosen by the fit, its height by GLS; the truth's
-                  step is 1.5 m wide; session 36's first runs gave ``width=1.0``).
+``glacimap_breakline`` the default estimator told the line of a ``--feature scarp``,
+                  ``scarp-along`` or ``scarp-end``: ``mean=terrain.BreaklineMean([line])``
+                  (a constant plus the step, its width and, where the line stops inside the
+                  survey, its taper chosen by the fit, its height by GLS; the truth's step is
+                  1.5 m wide; session 36's first runs gave ``width=1.0``).
+``glacimap_breakline_across`` a ``--feature scarp-end``'s line run on across the site, as
+                  0.36.0 required of every breakline (a step where the ground has none).
 ``rbf_tps64``     scipy ``RBFInterpolator``, thin-plate spline, 64 neighbours, smoothing 0.
 ``verde_knn``     ``verde.KNeighbors()`` defaults.
 ``verde_spline``  ``verde.BlockReduce(np.median, spacing=4)`` + ``verde.Spline()``; guarded:
@@ -76,12 +80,20 @@ METHODS = (
     "glacimap_dem",
     "glacimap_pycno",
     "glacimap_breakline",
+    "glacimap_breakline_across",
     "rbf_tps64",
     "verde_knn",
     "verde_spline",
     "pykrige_ok",
 )
-WITH_STD = ("glacimap", "glacimap_dem", "glacimap_pycno", "glacimap_breakline", "pykrige_ok")
+GLACIMAP = (
+    "glacimap",
+    "glacimap_dem",
+    "glacimap_pycno",
+    "glacimap_breakline",
+    "glacimap_breakline_across",
+)
+WITH_STD = (*GLACIMAP, "pykrige_ok")
 SEED = 0
 #: Samples' noise sd, m (``track_samples``' default; every result before session 21).
 NOISE_SD = 0.2
@@ -328,19 +340,26 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
         from terrain import delaunay_linear
 
         pred = delaunay_linear(samples, grid).elevation.values
-    elif method in ("glacimap", "glacimap_dem", "glacimap_pycno", "glacimap_breakline"):
+    elif method in GLACIMAP:
         import real_dems
 
         from terrain import BreaklineMean, PycnophylacticMean, TerrainGP, coarse_dem
 
-        line = real_dems.feature_line(truth, site.get("feature", "none"))
+        feature = site.get("feature", "none")
+        line = real_dems.feature_line(truth, feature)
         if method == "glacimap_breakline" and line is None:
-            return {"skipped": "no breakline: --feature scarp or scarp-along", "method_s": None}
+            why = "no breakline: --feature scarp, scarp-along or scarp-end"
+            return {"skipped": why, "method_s": None}
+        if method == "glacimap_breakline_across":  # a scarp-end's line run on across
+            if feature != "scarp-end":
+                return {"skipped": "only for --feature scarp-end", "method_s": None}
+            line = real_dems.feature_line(truth, "scarp")
         kw = {
             "glacimap": {},
             "glacimap_dem": {"mean": coarse_dem(truth)},
             "glacimap_pycno": {"mean": PycnophylacticMean(coarse_dem(truth))},
             "glacimap_breakline": {"mean": BreaklineMean([line])},  # width="auto"
+            "glacimap_breakline_across": {"mean": BreaklineMean([line])},
         }[method]
         gp = TerrainGP(seed=0, **kw)
         tf = time.perf_counter()
@@ -694,7 +713,8 @@ def main(argv: list[str] | None = None) -> int:
         choices=FEATURES,
         default="none",
         help="a sharp ground feature added to every site (real_dems.add_feature): a scarp "
-        "crossed by the tracks or lying between them, a flat lake, terraces (none: every "
+        "crossed by the tracks, lying between them or dying out inside the site, a flat lake, "
+        "terraces (none: every "
         "result before session 36)",
     )
     args = ap.parse_args(argv)

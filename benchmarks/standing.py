@@ -57,6 +57,7 @@ MEANS = {
     "glacimap_dem": "8x8",
     "glacimap_pycno": "area-means",
     "glacimap_breakline": "breakline",
+    "glacimap_breakline_across": "breakline-across",
 }
 #: Which verdict keys make each target (all must pass).
 TARGETS = {

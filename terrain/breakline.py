@@ -16,9 +16,10 @@ The GP estimates every coefficient by generalised least squares with its uncerta
 on either side. Each step's width ``w_j`` is given, or chosen by least squares on the
 samples beside its line (``width="auto"``, :meth:`BreaklineMean.choose_widths`).
 
-A breakline must cross the survey: both its ends outside the samples' bounding box. Beyond
-its ends it is taken as running straight on, so a line that stopped inside the survey would
-put a step where there is none.
+An end outside the samples' bounding box is taken as running straight on. An end inside it
+is *open*: the step dies out over the last ``T`` metres before it (the taper, given or chosen
+like the width), and the column is the double layer of :mod:`terrain.breakline_geometry`,
+continuous round the end, so a cliff that fades out inside the survey puts no step beyond it.
 """
 
 from __future__ import annotations
@@ -30,6 +31,13 @@ from typing import Any
 import numpy as np
 from scipy.special import expit
 
+from .breakline_geometry import (
+    arc_positions,
+    double_layer,
+    left_side,
+    signed_distances,
+    taper_of,
+)
 from .errors import NotFittedError, bad_input
 from .linear_mean import (
     check_coefficients,
@@ -41,12 +49,14 @@ from .linear_mean import (
 
 __all__ = ["BreaklineMean"]
 
-#: How far beyond its ends a breakline is run on straight to split the plane, m.
-_REACH_M = 1e7
 #: Distance in widths beyond which a step is flat: expit(40) is 1 to double precision.
 _FLAT = 40.0
 #: Step widths ``width="auto"`` tries, m (those up to a quarter of the samples' reach).
 WIDTHS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
+#: Taper lengths ``taper="auto"`` tries at an end inside the survey, m (sqrt(2) apart); the
+#: first guess.
+TAPERS = (5.0, 7.0, 10.0, 14.0, 20.0, 28.0, 40.0, 56.0, 80.0, 113.0, 160.0)
+_TAPER_START = 40.0
 
 
 def _plane(xy: np.ndarray) -> np.ndarray | None:
@@ -83,35 +93,78 @@ def _line_coords(line: Any, j: int) -> np.ndarray:
     return xy
 
 
+def _per_line(
+    value: Any, name: str, n: int, example: str, none_ok: bool = False
+) -> tuple[Any, tuple | None]:
+    """``value`` of a per-line setting (``width``, ``taper``): ``"auto"``, a positive number
+    (m) for every line, or one per line (what a fit chose, given back; ``None`` for a line
+    it does not apply to where ``none_ok``); ``(setting, fitted)``."""
+    if isinstance(value, str) and value == "auto":
+        return "auto", None
+    if _positive(value):
+        return float(value), (float(value),) * n
+    if (
+        np.ndim(value) == 1
+        and len(value) == n
+        and all(_positive(v) or (none_ok and v is None) for v in value)
+    ):
+        out = tuple(None if v is None else float(v) for v in value)
+        return out, out
+    raise bad_input(
+        name,
+        value,
+        f'"auto", a positive {name} in m, or {n} of them (one per line)',
+        f"e.g. {name}={example}",
+    )
+
+
 class BreaklineMean:
     """A linear prior mean with a step across each breakline (see the module notes).
 
     Parameters
     ----------
     lines : sequence of shapely.LineString or array of shape (k, 2)
-        Breaklines in the samples' CRS, metres; each crosses the survey (both ends outside
-        the samples' bounding box) without crossing itself.
+        Breaklines in the samples' CRS, metres, none crossing itself. An end outside the
+        samples' bounding box runs on straight; an end inside it is open: the step dies out
+        towards it over the taper.
     base : mean, default "constant"
         The mean the steps are added to; anything :class:`terrain.TerrainGP` takes as
         ``mean`` whose coefficients are estimated (a constant, ``RasterMean(...,
         offset="fit")``, a coarse DEM).
-    width : float or "auto", default "auto"
+    width : float, sequence of float or "auto", default "auto"
         Scale of each step's logistic, m: it rises from 12 % to 88 % over 4 x ``width``.
         ``"auto"``: each line's own, from :data:`WIDTHS`, the one whose step and planes fit
         the samples beside it best (least squares; :meth:`fit`). A step's fitted height is
         the ground's only at the ground's width.
+    taper : float, sequence of float or "auto", default "auto"
+        Length (m, along the line) over which a step dies out before an open end, by a
+        smoothstep; used only by lines with an end inside the survey. ``"auto"``: from
+        :data:`TAPERS`, by the same least squares as the width.
 
     Attributes
     ----------
     coef_ : ndarray of shape (n_coef,) or None
-        The base's coefficients, then each step's height (m, up to the line's left).
+        The base's coefficients, then each step's height (m, up to the line's left; at full
+        strength, away from an open end's taper).
     coef_cov_ : ndarray of shape (n_coef, n_coef) or None
         Their covariance.
     widths_ : tuple of float or None
         Each line's step width, m (chosen by :meth:`fit` with ``width="auto"``).
+    open_ends_ : tuple of (bool, bool) or None
+        Per line, whether its first and last vertex lie inside the fitted samples' bounding
+        box (set by :meth:`fit`; before it every end runs on).
+    tapers_ : tuple of float or None
+        Each line's taper, m (chosen by :meth:`fit` with ``taper="auto"`` for the lines with
+        an open end).
     """
 
-    def __init__(self, lines: Any, base: Any = "constant", width: float | str = "auto") -> None:
+    def __init__(
+        self,
+        lines: Any,
+        base: Any = "constant",
+        width: float | str = "auto",
+        taper: float | str = "auto",
+    ) -> None:
         from .prior import as_mean_function  # here: prior imports this module
 
         if isinstance(lines, np.ndarray) and lines.ndim == 2:
@@ -127,27 +180,13 @@ class BreaklineMean:
                 "a mean whose coefficients are estimated (n_coef >= 1)",
                 'e.g. base="constant", or a DEM mean with offset="fit" (a + b * DEM)',
             )
-        if isinstance(width, str) and width == "auto":
-            self.width, self.widths_ = "auto", None
-        elif _positive(width):
-            self.width = float(width)
-            self.widths_ = (self.width,) * len(self.lines)
-        elif (
-            np.ndim(width) == 1
-            and len(width) == len(self.lines)
-            and all(_positive(w) for w in width)
-        ):  # one per line: the widths a fit chose, given back (glacimap change rebuilds)
-            self.width = self.widths_ = tuple(float(w) for w in width)
-        else:
-            raise bad_input(
-                "width",
-                width,
-                f'"auto", a positive step width in m, or {len(self.lines)} of them (one per line)',
-                'e.g. width="auto"',
-            )
+        n = len(self.lines)
+        self.width, self.widths_ = _per_line(width, "width", n, '"auto"')
+        self.taper, self.tapers_ = _per_line(taper, "taper", n, '"auto" or 40.0', True)
+        self.open_ends_: tuple[tuple[bool, bool], ...] | None = None
         self.coef_: np.ndarray | None = None
         self.coef_cov_: np.ndarray | None = None
-        self._sides = tuple(self._left_side(xy) for xy in self.lines)
+        self._sides = tuple(left_side(xy) for xy in self.lines)
 
     # -- the linear-mean protocol (terrain.linear_mean) -------------------------------------
     @property
@@ -179,78 +218,107 @@ class BreaklineMean:
     def __getattr__(self, name: str) -> Any:
         """A raster base's own settings (``for_grid``, ``cells``, ``coarse_and_own_cell_m``...)
         read through: the toolkit sets and reports them on the mean it is given."""
-        if name.startswith("_") or name in ("base", "lines", "width", "widths_", "coef_"):
+        if name.startswith("_") or name in _OWN:
             raise AttributeError(name)
         return getattr(self.base, name)
 
+    def _open(self) -> tuple[tuple[bool, bool], ...]:
+        return self.open_ends_ or ((False, False),) * len(self.lines)
+
     def signed_distances(self, xy: np.ndarray, within: float) -> np.ndarray:
         """Signed distance (m, positive left) from ``xy`` (n, 2) to each line, shape
-        (n, n_lines): exact (shapely) within ``within`` m of a line, found by a k-d tree of
-        its vertices densified every 0.25 m; beyond, +-inf (a step is flat there)."""
-        import shapely
-        from scipy.spatial import cKDTree
-
+        (n, n_lines): exact (shapely) within ``within`` m of a line; beyond, +-inf (a step
+        is flat there). The side is that of the line run on straight beyond its ends."""
         xy = check_xy(xy)
-        D = np.empty((len(xy), len(self.lines)))
-        for j, (coords, left) in enumerate(zip(self.lines, self._sides, strict=True)):
-            line = shapely.LineString(coords)
-            dense = shapely.get_coordinates(shapely.segmentize(line, 0.25))
-            d = cKDTree(dense).query(xy, distance_upper_bound=within + 0.125)[0]  # inf beyond
-            near = np.isfinite(d)
-            d[near] = shapely.distance(line, shapely.points(xy[near]))
-            D[:, j] = np.where(shapely.contains_xy(left, xy[:, 0], xy[:, 1]), d, -d)
-        return D
+        pairs = zip(self.lines, self._sides, strict=True)
+        return np.column_stack([signed_distances(xy, c, side, within) for c, side in pairs])
 
-    def steps(self, xy: np.ndarray, widths: Any = None, D: np.ndarray | None = None) -> np.ndarray:
-        """``S_j(x) = expit(d_j(x) / width_j)``, shape (n, n_lines), in [0, 1], at ``widths``
-        (m, one per line; default :attr:`widths_`); ``D``: :meth:`signed_distances` when
-        known. Beyond ``_FLAT`` widths of a line ``expit`` is 0 or 1 to double precision, so
-        distances are exact only within them."""
+    def _geometry(self, xy: np.ndarray, within: float) -> dict[str, Any]:
+        """What the step columns need at ``xy`` (n, 2): signed distances within ``within``
+        m, and for lines with an open end the arc positions of the nearest points there."""
+        D = self.signed_distances(xy, within)
+        arcs = []
+        for j, ends in enumerate(self._open()):
+            s = None
+            if any(ends):
+                near = np.isfinite(D[:, j])
+                s = np.full(len(xy), np.nan)
+                s[near] = arc_positions(xy[near], self.lines[j])
+            arcs.append(s)
+        return {"xy": xy, "D": D, "s": arcs, "layers": {}}
+
+    def _columns(self, geom: dict[str, Any], widths: Any, tapers: Any) -> np.ndarray:
+        """The step columns, (n, n_lines), on :meth:`_geometry`'s points: ``expit(d / w)``
+        for a line run on at both ends; for one with an open end the double layer whose
+        strength tapers off (:mod:`terrain.breakline_geometry`), given its width near it."""
+        D = geom["D"]
+        S = expit(D / np.asarray(widths, dtype=float))
+        for j, ends in enumerate(self._open()):
+            if not any(ends):
+                continue
+            if tapers is None or tapers[j] is None:
+                raise NotFittedError(
+                    'BreaklineMean(taper="auto") chooses its tapers in fit. Fix: let '
+                    "TerrainGP fit it, call mean.fit(xy, z) first, or give a taper in m."
+                )
+            key = (j, float(tapers[j]))
+            if key not in geom["layers"]:  # the same at every width: kept for the ladders
+                taper = taper_of(self.lines[j], ends, float(tapers[j]))
+                layer = double_layer(geom["xy"], taper.a, taper.b, taper.wa, taper.wb)
+                geom["layers"][key] = (taper, layer)
+            taper, layer = geom["layers"][key]
+            H = (D[:, j] > 0).astype(float)
+            near = np.isfinite(D[:, j])
+            jump = np.zeros(len(D))
+            jump[near] = taper.at(geom["s"][j][near]) * (S[near, j] - H[near])
+            S[:, j] = H - layer + jump
+        return S
+
+    def steps(self, xy: np.ndarray, widths: Any = None, tapers: Any = None) -> np.ndarray:
+        """The step columns ``S_j(x)``, shape (n, n_lines), in [0, 1] (0 far on a line's
+        right, 1 far on its left; a line with an open end: less round the end), at
+        ``widths`` and ``tapers`` (m, one per line; default :attr:`widths_`,
+        :attr:`tapers_`). For a line run on at both ends ``S = expit(d / w)``; beyond
+        ``_FLAT`` widths of a line ``expit`` is 0 or 1 to double precision, so distances are
+        exact only within them."""
         widths = self.widths_ if widths is None else widths
         if widths is None:
             raise NotFittedError(
                 'BreaklineMean(width="auto") chooses its widths in fit. Fix: let TerrainGP '
                 "fit it, call mean.fit(xy, z) first, or give a width in m."
             )
-        widths = np.asarray(widths, dtype=float)
-        if D is None:
-            D = self.signed_distances(xy, _FLAT * float(widths.max()))
-        return expit(D / widths)
+        xy = check_xy(xy)
+        geom = self._geometry(xy, _FLAT * float(np.max(widths)))
+        return self._columns(geom, widths, self.tapers_ if tapers is None else tapers)
 
     def basis(self, xy: np.ndarray) -> np.ndarray:
         """Design matrix ``[h_base(x), S_1(x), ...]``, shape (n, n_coef)."""
         return np.column_stack([np.asarray(self.base.basis(xy), float), self.steps(xy)])
 
-    def check_crossing(self, xy: np.ndarray) -> None:
-        """An ``InputError`` naming the line when one of its ends lies inside the bounding
-        box of ``xy`` (n, 2): a breakline must cross the survey."""
+    def open_ends(self, xy: np.ndarray) -> tuple[tuple[bool, bool], ...]:
+        """Per line, whether its first and last vertex lie inside the bounding box of
+        ``xy`` (n, 2): the ends at which its step dies out."""
         lo, hi = check_xy(xy).min(axis=0), xy.max(axis=0)
-        for j, coords in enumerate(self.lines):
-            for end in (coords[0], coords[-1]):
-                if np.all(end > lo) and np.all(end < hi):
-                    raise bad_input(
-                        f"lines[{j}]",
-                        f"end at ({end[0]:.1f}, {end[1]:.1f})",
-                        f"both ends outside the samples' box x {lo[0]:.1f}..{hi[0]:.1f}, "
-                        f"y {lo[1]:.1f}..{hi[1]:.1f}",
-                        "extend the breakline across the survey (it is run on straight "
-                        "beyond its ends), or leave it out",
-                    )
+        inside = [
+            tuple(bool(np.all(end > lo) and np.all(end < hi)) for end in (c[0], c[-1]))
+            for c in self.lines
+        ]
+        return tuple(inside)
 
     def fit(self, xy: np.ndarray, z: np.ndarray) -> BreaklineMean:
-        """A fitted copy: with ``width="auto"`` each line's width first
-        (:meth:`choose_widths`); each step's height from the samples beside its line
-        (:meth:`local_steps`), then the base's coefficients by least squares on ``z`` less
-        the steps. The GP's kernel is searched on those residuals and every coefficient then
-        re-estimated by GLS. A global least-squares start would not do: a step splits the
-        site in two, and the halves' trend difference (9 m on a 25 m site) read as step
-        height left a step in the residuals that the kernel search fitted as rough ground."""
+        """A fitted copy: which ends are open (:meth:`open_ends`), then with ``"auto"``
+        each line's width and taper (:meth:`choose_shape`); each step's height from the
+        samples beside its line (:meth:`local_steps`), then the base's coefficients by
+        least squares on ``z`` less the steps. The GP's kernel is searched on those
+        residuals and every coefficient then re-estimated by GLS. A global least-squares
+        start would not do: a step splits the site in two, and the halves' trend difference
+        (9 m on a 25 m site) read as step height left a step in the residuals that the
+        kernel search fitted as rough ground."""
         xy, z = check_z(xy, z)
-        self.check_crossing(xy)
         out = copy.copy(self)
+        out.open_ends_ = self.open_ends(xy)
         spacing = _spacing(xy)  # the samples' median spacing, m: both reaches
-        if self.width == "auto":
-            out.widths_ = self.choose_widths(xy, z, spacing)
+        out.widths_, out.tapers_ = out.choose_shape(xy, z, spacing)
         steps, steps_cov = out.local_steps(xy, z, spacing)
         rest = z - out.steps(xy) @ steps
         base_beta, base_cov = ols_coefficients(np.asarray(self.base.basis(xy), float), rest)
@@ -259,26 +327,38 @@ class BreaklineMean:
         cov[:p, :p], cov[p:, p:] = base_cov, steps_cov
         return out.with_coefficients(np.concatenate([base_beta, steps]), cov)
 
-    def choose_widths(
+    def choose_shape(
         self, xy: np.ndarray, z: np.ndarray, spacing: float | None = None
-    ) -> tuple[float, ...]:
+    ) -> tuple[tuple[float, ...], tuple[float | None, ...]]:
         """Each line's width from :data:`WIDTHS` (those up to a quarter of the reach ``R`` =
-        3 x the samples' median spacing, at least 16 m: every rung on a rover's survey): the
+        3 x the samples' median spacing, at least 16 m: every rung on a rover's survey), then
+        for a line with an open end its taper from :data:`TAPERS`, where ``"auto"``: the
         one whose step and planes (:meth:`local_steps`' model, on the samples within ``R``)
-        leave the least squared residual, line by line from 1 m. On a synthetic draw with
-        steps 0.5, 1, 1.5 and 3 m wide it picks 0.5, 1, 1.4 and 2.8 (tests)."""
+        leave the least squared residual, line by line, from 1 m and 40 m. On a synthetic
+        draw with steps 0.5, 1, 1.5 and 3 m wide it picks 0.5, 1, 1.4 and 2.8 (tests).
+        Returns ``(widths, tapers)``, a taper ``None`` for a line run on at both ends."""
         spacing = _spacing(xy) if spacing is None else spacing
+        opened = [any(ends) for ends in self._open()]
+        given = self.tapers_ or (None,) * len(self.lines)
+        choose = [o and given[j] is None for j, o in enumerate(opened)]  # "auto" or None
+        widths = list(self.widths_ or [1.0] * len(self.lines))
+        tapers = [(given[j] or _TAPER_START) if o else None for j, o in enumerate(opened)]
+        if self.width != "auto" and not any(choose):
+            return tuple(widths), tuple(tapers)
         reach = max(3.0 * spacing, 16.0)
-        ladder = [w for w in WIDTHS if 4.0 * w <= reach]
         near = self._near(xy, reach)
-        widths = [1.0] * len(self.lines)
+
+        def rss(j: int, w: float | None = None, t: float | None = None) -> float:
+            ws = [*widths[:j], w, *widths[j + 1 :]] if w is not None else widths
+            ts = [*tapers[:j], t, *tapers[j + 1 :]] if t is not None else tapers
+            return self._local_fit(z, ws, ts, near)[2]
+
         for j in range(len(self.lines)):
-
-            def rss(w: float, j: int = j) -> float:
-                return self._local_fit(z, (*widths[:j], w, *widths[j + 1 :]), near)[2]
-
-            widths[j] = min(ladder, key=rss)
-        return tuple(widths)
+            if self.width == "auto":
+                widths[j] = min((w for w in WIDTHS if 4.0 * w <= reach), key=lambda w: rss(j, w))
+            if choose[j]:
+                tapers[j] = min(TAPERS, key=lambda t: rss(j, t=t))
+        return tuple(widths), tuple(tapers)
 
     def local_steps(
         self, xy: np.ndarray, z: np.ndarray, spacing: float | None = None
@@ -290,23 +370,22 @@ class BreaklineMean:
 
         Raises an ``InputError`` naming the line when no stretch has samples on both sides.
         """
-        widths = self.widths_
         spacing = _spacing(xy) if spacing is None else spacing
-        reach = max(5.0 * max(widths), 3.0 * spacing, 10.0)
+        reach = max(5.0 * max(self.widths_), 3.0 * spacing, 10.0)
         near = self._near(xy, reach)
-        return self._local_fit(z, widths, near)[:2]
+        return self._local_fit(z, self.widths_, self.tapers_, near)[:2]
 
     def _near(self, xy: np.ndarray, reach: float) -> dict[str, Any]:
-        """The samples within ``reach`` of the lines, their signed distances (exact) and
-        planes."""
-        import shapely
-
-        D = self.signed_distances(xy, reach)
+        """The samples within ``reach`` of the lines (their :meth:`_geometry`) and the
+        planes of their stretches."""
+        geom = self._geometry(xy, reach)
+        D = geom["D"]
         planes, rows = [], np.zeros(len(xy), dtype=bool)  # (samples, their plane's columns)
         for j, coords in enumerate(self.lines):
             near = np.abs(D[:, j]) <= reach
             idx = np.flatnonzero(near)
-            along = shapely.line_locate_point(shapely.LineString(coords), shapely.points(xy[idx]))
+            along = geom["s"][j]
+            along = along[idx] if along is not None else arc_positions(xy[idx], coords)
             stretch = np.floor(along / (2.0 * reach))
             both = 0
             for k in np.unique(stretch):
@@ -325,9 +404,15 @@ class BreaklineMean:
                     "survey across the breakline, or leave it out",
                 )
             rows |= near
-        return {"D": D[rows], "planes": planes, "rows": rows}
+        kept = {
+            "xy": xy[rows],
+            "D": D[rows],
+            "s": [None if s is None else s[rows] for s in geom["s"]],
+            "layers": {},
+        }
+        return {"geom": kept, "planes": planes, "rows": rows}
 
-    def _local_fit(self, z, widths, near) -> tuple[np.ndarray, np.ndarray, float]:
+    def _local_fit(self, z, widths, tapers, near) -> tuple[np.ndarray, np.ndarray, float]:
         """(steps, their covariance, residual sum of squares) of :meth:`local_steps` on the
         samples of :meth:`_near`."""
         rows, planes = near["rows"], near["planes"]
@@ -337,7 +422,7 @@ class BreaklineMean:
         H = np.zeros((int(rows.sum()), cols[-1] + len(self.lines)))
         for k, (idx, plane) in enumerate(planes):
             H[where[idx], cols[k] : cols[k + 1]] = plane
-        H[:, cols[-1] :] = self.steps(None, widths, D=near["D"])
+        H[:, cols[-1] :] = self._columns(near["geom"], widths, tapers)
         beta, cov = ols_coefficients(H, z[rows])
         rss = float(np.sum((z[rows] - H @ beta) ** 2))
         n = len(self.lines)
@@ -362,60 +447,47 @@ class BreaklineMean:
 
     def __repr__(self) -> str:
         n, base = len(self.lines), self.base
-        if isinstance(self.width, tuple):
-            width = "width=(" + ", ".join(f"{w:g}" for w in self.width) + ") m"
-        else:
-            width = "width='auto'" if self.width == "auto" else f"width={self.width:g} m"
-        if self.widths_ is not None and self.width == "auto":
-            width += " (" + ", ".join(f"{w:g}" for w in self.widths_) + " m)"
+        shape = _setting_repr("width", self.width, self.widths_)
+        if any(any(ends) for ends in self._open()):
+            shape += ", " + _setting_repr("taper", self.taper, self.tapers_)
         if self.coef_ is None:
-            return f"BreaklineMean({n} line(s), {width}, base={base!r})"
+            return f"BreaklineMean({n} line(s), {shape}, base={base!r})"
         p = int(base.n_coef)  # the base with its own coefficients, then the steps
         base = base.with_coefficients(self.coef_[:p], self.coef_cov_[:p, :p])
         steps = format_coefficients(self.coef_names[p:], self.coef_[p:], self.coef_cov_[p:, p:])
-        return f"BreaklineMean({n} line(s), {width}, base={base!r}, {steps})"
+        return f"BreaklineMean({n} line(s), {shape}, base={base!r}, {steps})"
 
     def geojson(self) -> dict[str, Any]:
         """The lines as a GeoJSON Feature (a MultiLineString in the samples' CRS, m) with the
-        steps' ``widths_m`` (None before a fit with ``width="auto"``) in its properties: what
-        a product records so that the mean can be rebuilt (``glacimap change``)."""
+        steps' ``widths_m`` and ``tapers_m`` (None before a fit chose them; a taper None for
+        a line run on at both ends) and ``open_ends`` in its properties: what a product
+        records so that the mean can be rebuilt (``glacimap change``)."""
         widths = None if self.widths_ is None else [float(w) for w in self.widths_]
+        tapers = None if self.tapers_ is None else [t and float(t) for t in self.tapers_]
+        ends = None if self.open_ends_ is None else [list(e) for e in self.open_ends_]
         return {
             "type": "Feature",
             "geometry": {
                 "type": "MultiLineString",
                 "coordinates": [xy.tolist() for xy in self.lines],
             },
-            "properties": {"widths_m": widths},
+            "properties": {"widths_m": widths, "tapers_m": tapers, "open_ends": ends},
         }
 
-    # -- geometry ---------------------------------------------------------------------------
-    @staticmethod
-    def _left_side(coords: np.ndarray):
-        """The half of the plane left of the line run on straight beyond its ends."""
-        import shapely
-        from shapely.ops import split
 
-        head = coords[0] - _REACH_M * _unit(coords[1] - coords[0])
-        tail = coords[-1] + _REACH_M * _unit(coords[-1] - coords[-2])
-        line = shapely.LineString(np.vstack([head, coords, tail]))
-        c = coords.mean(axis=0)
-        r = 0.5 * _REACH_M  # the run-on ends lie beyond the box: the line cuts it
-        plane = shapely.box(c[0] - r, c[1] - r, c[0] + r, c[1] + r)
-        pieces = list(split(plane, line).geoms)
-        if len(pieces) != 2:
-            raise bad_input(
-                "lines",
-                f"{len(pieces)} pieces",
-                "a line that does not cross itself (it splits the plane in two)",
-                "split it into lines that do not cross themselves",
-            )
-        a, b = coords[0], coords[1]
-        probe = (a + b) / 2 + 1e-3 * np.array([-(b - a)[1], (b - a)[0]]) / np.hypot(*(b - a))
-        left = [p for p in pieces if p.contains(shapely.Point(probe))]
-        piece = left[0] if left else pieces[1]
-        shapely.prepare(piece)
-        return piece
+#: Attributes of the mean itself, never read through to its base.
+_OWN = ("base", "lines", "width", "widths_", "taper", "tapers_", "open_ends_", "coef_")
+
+
+def _setting_repr(name: str, setting: Any, fitted: Any) -> str:
+    def fmt(values: Any) -> str:
+        return ", ".join("-" if v is None else f"{v:g}" for v in values)
+
+    if isinstance(setting, tuple):
+        return f"{name}=({fmt(setting)}) m"
+    if setting != "auto":
+        return f"{name}={setting:g} m"
+    return f"{name}='auto'" + (f" ({fmt(fitted)} m)" if fitted is not None else "")
 
 
 def _spacing(xy: np.ndarray) -> float:
@@ -423,7 +495,3 @@ def _spacing(xy: np.ndarray) -> float:
     from scipy.spatial import cKDTree
 
     return float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.hypot(*v)

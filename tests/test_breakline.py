@@ -110,8 +110,7 @@ def test_auto_width_finds_the_steps_width(scarp_survey):
 def test_bad_lines_are_refused_by_name(scarp_survey):
     xy, f, step, noise, line, *_ = scarp_survey
     z = f + step + noise
-    with pytest.raises(InputError, match=r"lines\[0\].*both ends outside"):
-        BreaklineMean([line[100:300]]).fit(xy, z)  # ends inside the survey
+    # (an end inside the survey was refused until 0.37.0: test_breakline_open_end.py)
     with pytest.raises(InputError, match=r"lines\[1\]"):
         BreaklineMean([line, [[0.0, 0.0]]])  # one vertex
     with pytest.raises(InputError, match="does not cross itself"):

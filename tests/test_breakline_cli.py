@@ -156,24 +156,58 @@ def test_cli_bad_breaklines_are_refused_before_anything_is_written(
     assert not out.exists()
 
 
-def test_the_width_option_reads_auto_or_metres():
-    from toolkit.breaklines_io import breakline_width
+def test_the_width_and_taper_options_read_auto_or_metres():
+    from toolkit.breaklines_io import breakline_taper, breakline_width
 
-    assert breakline_width("auto") == breakline_width(" AUTO ") == "auto"
-    assert breakline_width("1.5") == 1.5
-    for bad in ("wide", "0", "-1", "nan"):
-        with pytest.raises(InputError, match="--breakline-width"):
-            breakline_width(bad)
+    for option, read in (
+        ("--breakline-width", breakline_width),
+        ("--breakline-taper", breakline_taper),
+    ):
+        assert read("auto") == read(" AUTO ") == "auto"
+        assert read("1.5") == 1.5
+        for bad in ("wide", "0", "-1", "nan", "inf"):
+            with pytest.raises(InputError, match=option):
+                read(bad)
 
 
-def test_cli_line_ending_inside_the_survey_is_refused_by_name(scarp_csv, tmp_path):
-    gj = tmp_path / "short.geojson"
-    gj.write_text(json.dumps({"type": "LineString", "coordinates": _line()[40:120].tolist()}))
-    out = tmp_path / "never"
-    res = runner.invoke(app, ["reconstruct", str(scarp_csv), "--crs", CRS,
+def test_cli_maps_a_cliff_that_dies_out_inside_the_survey(tmp_path):
+    # The default site with a 3 m step, 1 m wide, whose height falls by half a cosine of
+    # the easting over the 150 m before it stops 450 m into the site; the line drawn to
+    # there. Until 0.37.0 such a line was refused ("both ends outside").
+    rng = np.random.default_rng(2)
+    xy = rng.uniform([X0 + 2, Y0 + 2], [X0 + 598, Y0 + 598], size=(800, 2))
+    across = xy[:, 1] - (Y0 + 300.0 + 25.0 * np.sin((xy[:, 0] - X0) / 70.0))
+    fade = np.clip((X0 + 450.0 - xy[:, 0]) / 150.0, 0.0, 1.0)
+    step = 3.0 * expit(across) * (0.5 - 0.5 * np.cos(np.pi * fade))
+    z = sample_dem(default_site(resolution=4.0), xy) + step + rng.normal(0, 0.2, len(xy))
+    csv = tmp_path / "spots.csv"
+    pd.DataFrame({"x": xy[:, 0], "y": xy[:, 1], "z": z, "z_var": 0.04}).to_csv(csv, index=False)
+    line = _line()
+    gj = tmp_path / "cliff.geojson"
+    gj.write_text(
+        json.dumps({"type": "LineString", "coordinates": line[line[:, 0] <= X0 + 450].tolist()})
+    )
+    out = tmp_path / "map"
+    res = runner.invoke(app, ["reconstruct", str(csv), "--crs", CRS, "--resolution", "10",
                               "--breaklines", str(gj), "--out", str(out)])  # fmt: skip
-    assert isinstance(res.exception, InputError) and "lines[0]" in str(res.exception)
-    assert not out.exists()
+    assert res.exit_code == 0, res.output
+    said = " ".join(res.output.split())  # the console wraps at 80 columns
+    assert "last vertex inside the survey: the step dies out over the" in said
+    attrs = xr.open_dataset(out / "product.nc").attrs
+    height = float(attrs["mean_function"].split("step1_m=")[1].split()[0])
+    assert height == pytest.approx(3.0, abs=0.5)  # measured 2.72 +- 0.17 (800 spot heights)
+    record = json.loads(attrs["breaklines"])["properties"]
+    assert record["open_ends"] == [[False, True]] and record["tapers_m"][0] > 0
+    # a taper given is used as given; a bad one stops the command before any work
+    res = runner.invoke(app, ["reconstruct", str(csv), "--crs", CRS, "--resolution", "10",
+                              "--breaklines", str(gj), "--breakline-taper", "60",
+                              "--out", str(tmp_path / "given")])  # fmt: skip
+    assert res.exit_code == 0 and "dies out over the 60 m before it" in " ".join(res.output.split())
+    never = tmp_path / "never"
+    res = runner.invoke(app, ["reconstruct", str(csv), "--crs", CRS, "--breaklines", str(gj),
+                              "--breakline-taper", "long", "--out", str(never)])  # fmt: skip
+    assert isinstance(res.exception, InputError) and "--breakline-taper" in str(res.exception)
+    assert not never.exists()
 
 
 def test_process_takes_breaklines_and_finds_no_step_where_there_is_none(tmp_path):

@@ -4,7 +4,8 @@ calving front, a moraine's edge), for ``terrain.BreaklineMean``.
 Any vector file GDAL reads (GeoPackage, GeoJSON, Shapefile...) of LineStrings or
 MultiLineStrings, reprojected to the map's CRS from the CRS it declares, or a WKT file (one
 geometry per line, or a GEOMETRYCOLLECTION) in the map's CRS (:mod:`toolkit.vector_io`).
-Each line must cross the survey (terrain/breakline.py).
+A line that stops inside the survey has its step die out towards that end (its taper;
+terrain/breakline.py).
 """
 
 from __future__ import annotations
@@ -19,7 +20,14 @@ from terrain.errors import bad_input
 
 from .vector_io import read_geometries
 
-__all__ = ["breakline_width", "check_breakline_options", "read_breaklines", "with_breaklines"]
+__all__ = [
+    "breakline_taper",
+    "breakline_width",
+    "check_breakline_options",
+    "read_breaklines",
+    "step_notes",
+    "with_breaklines",
+]
 
 FIELD = "--breaklines"
 
@@ -47,7 +55,7 @@ def read_breaklines(
                     FIELD,
                     f"a {part.geom_type} in {Path(path).name}",
                     "LineStrings (or MultiLineStrings) only",
-                    "draw each breakline as a line across the survey",
+                    "draw each breakline as a line along the step",
                 )
             lines.append(np.asarray(part.coords, dtype=float)[:, :2])
     if not lines:
@@ -61,42 +69,82 @@ def with_breaklines(
     mean: Any,
     lines: Any,
     width: float | str = "auto",
+    taper: float | str = "auto",
     crs: Any = None,
     notes: list[str] | None = None,
 ) -> Any:
     """``mean`` with a step across each breakline (``terrain.BreaklineMean``), or ``mean``
     itself when ``lines`` is None. ``lines``: a vector file (:func:`read_breaklines`, read
     in ``crs``: the map's, its reading said in ``notes``) or vertex arrays already in it;
-    ``width``: ``"auto"`` or metres (:func:`breakline_width`)."""
+    ``width``, ``taper``: ``"auto"`` or metres (:func:`breakline_width`,
+    :func:`breakline_taper`)."""
     if lines is None:
         return mean
     from terrain import BreaklineMean
 
     if isinstance(lines, str | Path):
         lines = read_breaklines(Path(lines), crs, notes)
-    return BreaklineMean(lines, base=mean, width=breakline_width(width))
+    return BreaklineMean(
+        lines, base=mean, width=breakline_width(width), taper=breakline_taper(taper)
+    )
+
+
+def _metres_or_auto(value: Any, option: str, what: str, example: str) -> float | str:
+    if isinstance(value, str) and value.strip().lower() == "auto":
+        return "auto"
+    try:
+        metres = float(value)
+    except (TypeError, ValueError):
+        metres = float("nan")
+    if not 0 < metres < float("inf"):
+        raise bad_input(option, value, f'"auto" or a positive {what} in m', example)
+    return metres
 
 
 def breakline_width(value: Any) -> float | str:
     """``--breakline-width``: ``"auto"`` (each line's own, chosen by fit) or a positive
     number of metres; anything else an ``InputError`` naming the option."""
-    if isinstance(value, str) and value.strip().lower() == "auto":
-        return "auto"
-    try:
-        width = float(value)
-    except (TypeError, ValueError):
-        width = float("nan")
-    if not width > 0:
-        raise bad_input(
-            "--breakline-width", value, '"auto" or a positive width in m', "e.g. auto or 1.5"
-        )
-    return width
+    return _metres_or_auto(value, "--breakline-width", "width", "e.g. auto or 1.5")
 
 
-def check_breakline_options(path: Path, width: Any) -> float | str:
-    """``--breaklines`` and ``--breakline-width`` checked before any work (the file parses
-    and holds lines; the width is valid): the width as :func:`breakline_width` gives it. The
-    lines themselves are read again in the map's CRS when it is known (:func:`with_breaklines`).
-    """
+def breakline_taper(value: Any) -> float | str:
+    """``--breakline-taper``: ``"auto"`` or the positive length (m) a step dies out over
+    before an end inside the survey; anything else an ``InputError`` naming the option."""
+    return _metres_or_auto(value, "--breakline-taper", "length", "e.g. auto or 40")
+
+
+def check_breakline_options(
+    path: Path, width: Any, taper: Any = "auto"
+) -> tuple[float | str, float | str]:
+    """``--breaklines``, ``--breakline-width`` and ``--breakline-taper`` checked before any
+    work (the file parses and holds lines; width and taper are valid): ``(width, taper)``
+    as :func:`breakline_width` and :func:`breakline_taper` give them. The lines themselves
+    are read again in the map's CRS when it is known (:func:`with_breaklines`)."""
     read_breaklines(Path(path))
-    return breakline_width(width)
+    return breakline_width(width), breakline_taper(taper)
+
+
+def step_notes(mean: Any) -> list[str]:
+    """One sentence per breakline of a fitted ``terrain.BreaklineMean`` (for the console):
+    its step's height with its 1-sigma, its width, and where it stops inside the survey the
+    length its step dies out over; ``[]`` for another mean."""
+    coef, cov = getattr(mean, "coef_", None), getattr(mean, "coef_cov_", None)
+    if type(mean).__name__ != "BreaklineMean" or coef is None:
+        return []
+    n = len(mean.lines)
+    out = []
+    for j in range(n):
+        k = len(coef) - n + j
+        text = (
+            f"line {j + 1}: step {coef[k]:.2f} +- {np.sqrt(cov[k, k]):.2f} m up to its left, "
+            f"{mean.widths_[j]:g} m wide"
+        )
+        inside = zip(("first", "last"), mean.open_ends_[j], strict=True)
+        ends = [name for name, open_end in inside if open_end]
+        if ends:
+            text += (
+                f"; its {' and '.join(ends)} vertex inside the survey: the step dies out over "
+                f"the {mean.tapers_[j]:g} m before it"
+            )
+        out.append(text)
+    return out

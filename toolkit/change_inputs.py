@@ -166,7 +166,9 @@ def _mean_from_provenance(
         feature = json.loads(breaklines)
         base = _mean_from_provenance(mean_repr.split("base=", 1)[1], folder, prior)
         lines = [np.asarray(c, float) for c in feature["geometry"]["coordinates"]]
-        return BreaklineMean(lines, base=base, width=feature["properties"]["widths_m"])
+        shape = feature["properties"]  # tapers: None for a line run on at both ends
+        tapers = shape.get("tapers_m") or "auto"  # not recorded before 0.37.0: none open
+        return BreaklineMean(lines, base=base, width=shape["widths_m"], taper=tapers)
     if mean_repr.startswith("ConstantMean(value=None"):
         return "constant"
     if mean_repr.startswith("RasterMean("):

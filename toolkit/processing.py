@@ -226,6 +226,7 @@ def process(
     on_frames: Callable[[int, int], None] | None = None,
     breaklines: Any = None,
     breakline_width: float | str = "auto",
+    breakline_taper: float | str = "auto",
 ) -> ProcessResult:
     """Process a survey into certified products in ``out``.
 
@@ -259,12 +260,15 @@ def process(
     on_frames : callable, optional
         ``on_frames(k, K)`` while the front-end tracks the frames (ingest).
     breaklines : path or sequence of (k, 2) arrays, optional
-        Lines the ground steps across (an ice cliff, a moraine's edge), each across the
-        survey: a vector file (reprojected to the map's CRS from the CRS it declares; WKT in
-        the map's CRS) or vertex arrays in the map's CRS (``terrain.BreaklineMean`` on the
-        prior mean; heights fitted).
+        Lines the ground steps across (an ice cliff, a moraine's edge; one that stops inside
+        the survey has its step die out towards that end): a vector file (reprojected to the
+        map's CRS from the CRS it declares; WKT in the map's CRS) or vertex arrays in the
+        map's CRS (``terrain.BreaklineMean`` on the prior mean; heights fitted).
     breakline_width : float or "auto"
         Scale of each step's logistic, m; ``"auto"``: each line's own, chosen by the fit.
+    breakline_taper : float or "auto"
+        Length a step dies out over before an end of its line inside the survey, m;
+        ``"auto"``: each line's own, chosen by the fit.
 
     Returns
     -------
@@ -277,7 +281,7 @@ def process(
     with output_folder(out) as folder:
         return _process(
             log, prior, control, checkpoints, settings, folder, bounds, on_stage, on_progress,
-            truth, truth_path, images, on_frames, (breaklines, breakline_width),
+            truth, truth_path, images, on_frames, (breaklines, breakline_width, breakline_taper),
         )  # fmt: skip
 
 
@@ -288,7 +292,7 @@ def _file_or_none(source: Any) -> Any:
 
 def _process(
     log, prior, control, checkpoints, settings, out, bounds, on_stage, on_progress, truth,
-    truth_path, images=True, on_frames=None, breaklines=(None, "auto"),
+    truth_path, images=True, on_frames=None, breaklines=(None, "auto", "auto"),
 ) -> ProcessResult:  # fmt: skip
     seed = int(settings["seed"])
     res = ProcessResult(out=out, settings=settings)

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ._breaklines import Breaklines, BreaklineWidth
+from ._breaklines import Breaklines, BreaklineTaper, BreaklineWidth
 from ._progress import certificate_rows, print_warnings, stage_progress
 
 
@@ -49,6 +49,7 @@ def process_command(
     ] = True,
     breaklines: Breaklines = None,
     breakline_width: BreaklineWidth = "auto",
+    breakline_taper: BreaklineTaper = "auto",
 ) -> None:
     """Ingest -> localize -> select -> reconstruct -> certify -> export -> report."""
     from toolkit.config import load_scenario
@@ -59,7 +60,7 @@ def process_command(
     if breaklines is not None:  # a bad file fails before any work too
         from toolkit.breaklines_io import check_breakline_options
 
-        check_breakline_options(breaklines, breakline_width)
+        check_breakline_options(breaklines, breakline_width, breakline_taper)
     if images:
         _say_frames(console, log_dir)
     with stage_progress(console, PROCESS_STAGES) as (on_stage, on_progress):
@@ -77,6 +78,7 @@ def process_command(
             on_frames=lambda k, n: on_progress(k, n, "ingest"),  # the front-end's frames
             breaklines=breaklines,
             breakline_width=breakline_width,
+            breakline_taper=breakline_taper,
         )
     cert = res.summary["certificate"]
     table = Table(title=f"glacimap process — seed {res.summary['seed']} — {res.out}")

@@ -15,7 +15,7 @@ from rich.table import Table
 from terrain.atomic import atomic_path
 from terrain.errors import bad_input
 
-from ._breaklines import Breaklines, BreaklineWidth
+from ._breaklines import Breaklines, BreaklineTaper, BreaklineWidth
 
 console = Console()
 #: What ``reconstruct SAMPLES.csv`` wrote (the next run into --out replaces it all).
@@ -106,6 +106,7 @@ def reconstruct(
     ] = None,
     breaklines: Breaklines = None,
     breakline_width: BreaklineWidth = "auto",
+    breakline_taper: BreaklineTaper = "auto",
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
@@ -136,7 +137,8 @@ def reconstruct(
         if breaklines is not None:  # checked before the fit: a bad file fails in milliseconds
             from ..breaklines_io import check_breakline_options
 
-            lines = (breaklines, check_breakline_options(breaklines, breakline_width))
+            shape = check_breakline_options(breaklines, breakline_width, breakline_taper)
+            lines = (breaklines, *shape)
         _reconstruct_csv(
             samples,
             out_dir,
@@ -221,6 +223,11 @@ def _reconstruct_csv(
                 shared_z_std=table.shared_z_std,
                 heldout_folds=int(settings["certify"]["heldout_folds"]),
             )
+    if lines is not None:  # each step's height, and where it dies out inside the survey
+        from ..breaklines_io import step_notes
+
+        for note in step_notes(rec.gp.mean_):
+            console.print(f"breaklines: {escape(note)}")
     for w in caught:
         if issubclass(w.category, DegenerateFitWarning):
             console.print(f"[yellow]warning (degenerate fit):[/] {escape(str(w.message))}")

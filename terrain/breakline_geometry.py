@@ -1,0 +1,205 @@
+"""The geometry of a breakline's step (:class:`terrain.BreaklineMean`): signed distances, the
+side a line run on straight leaves a point on, and the step of a line that ends inside the
+survey, a double layer whose strength dies out towards that end.
+
+A line run on straight beyond both ends splits the plane in two, and its step column is
+``expit(d / w)``, ``d`` the signed distance (m, positive left). A line that stops inside the
+survey (a cliff or scarp that fades out) cannot split the plane: going round its end the
+ground is continuous. Its column is instead the harmonic function whose only jump is
+``tau(s)`` across the line (a double layer of strength ``tau``; Kellogg 1929, ch. VI: of all
+functions with that jump, the one of least Dirichlet energy, so no ramp the samples did not
+ask for)::
+
+    J(x) = H(x) - (1 / 2 pi) * integral of (1 - tau(s)) dtheta_x(s)  over the run-on line
+
+``H`` the side of the line run on at both ends (1 left, 0 right), ``theta_x(s)`` the
+direction from ``x`` to the run-on line's point at arc position ``s``, and ``tau`` 1 along the
+line, 0 on the run-on ray beyond an *open* end, and going smoothly (smoothstep) from 1 to 0
+over the last ``T`` metres (the taper) before it. ``H`` is the double layer of strength 1 on
+the run-on line plus 1/2, so ``J`` is the double layer of strength ``tau`` (plus 1/2): the
+ray and the taper are subtracted, each as straight pieces whose strength is linear along
+them, in closed form (:func:`double_layer`). With both ends run on ``J = H``. Within a few
+widths of the line the jump is given the step's width: ``S = J + tau(s*) (expit(d / w) -
+H)``, ``s*`` the arc position of the nearest point of the line, ``tau`` piecewise linear
+between the same nodes as the pieces, so that the jumps cancel exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .errors import bad_input
+
+__all__ = ["Taper", "double_layer", "left_side", "signed_distances", "taper_of"]
+
+#: How far beyond its ends a breakline is run on straight to split the plane, m.
+REACH_M = 1e7
+#: Points a chunk of :func:`double_layer` takes: (chunk, pieces) arrays of 8 bytes.
+_CHUNK = 8192
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    return v / np.hypot(*v)
+
+
+def left_side(coords: np.ndarray):
+    """The half of the plane left of the line ``coords`` (k, 2) run on straight beyond its
+    ends (a prepared shapely polygon); an ``InputError`` when the run-on line crosses
+    itself."""
+    import shapely
+    from shapely.ops import split
+
+    head = coords[0] - REACH_M * unit(coords[1] - coords[0])
+    tail = coords[-1] + REACH_M * unit(coords[-1] - coords[-2])
+    line = shapely.LineString(np.vstack([head, coords, tail]))
+    c = coords.mean(axis=0)
+    r = 0.5 * REACH_M  # the run-on ends lie beyond the box: the line cuts it
+    plane = shapely.box(c[0] - r, c[1] - r, c[0] + r, c[1] + r)
+    pieces = list(split(plane, line).geoms)
+    if len(pieces) != 2:
+        raise bad_input(
+            "lines",
+            f"{len(pieces)} pieces",
+            "a line that does not cross itself, run on straight beyond its ends (it splits "
+            "the plane in two)",
+            "split it into lines that do not cross themselves",
+        )
+    a, b = coords[0], coords[1]
+    probe = (a + b) / 2 + 1e-3 * np.array([-(b - a)[1], (b - a)[0]]) / np.hypot(*(b - a))
+    left = [p for p in pieces if p.contains(shapely.Point(probe))]
+    piece = left[0] if left else pieces[1]
+    shapely.prepare(piece)
+    return piece
+
+
+def signed_distances(xy: np.ndarray, coords: np.ndarray, left: Any, within: float) -> np.ndarray:
+    """Signed distance (m, positive on ``left``, :func:`left_side`) from ``xy`` (n, 2) to
+    the line ``coords``, shape (n,): exact (shapely) within ``within`` m, found by a k-d
+    tree of its vertices densified every 0.25 m; beyond, +-inf."""
+    import shapely
+    from scipy.spatial import cKDTree
+
+    line = shapely.LineString(coords)
+    dense = shapely.get_coordinates(shapely.segmentize(line, 0.25))
+    d = cKDTree(dense).query(xy, distance_upper_bound=within + 0.125)[0]  # inf beyond
+    near = np.isfinite(d)
+    d[near] = shapely.distance(line, shapely.points(xy[near]))
+    return np.where(shapely.contains_xy(left, xy[:, 0], xy[:, 1]), d, -d)
+
+
+def arc_positions(xy: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """Arc position (m from the first vertex) of each point's nearest point on the line."""
+    import shapely
+
+    return shapely.line_locate_point(shapely.LineString(coords), shapely.points(xy))
+
+
+@dataclass(frozen=True)
+class Taper:
+    """A line's strength ``tau`` and the pieces of the double layer subtracted from its
+    half-plane step (:func:`taper_of`).
+
+    Attributes
+    ----------
+    s, tau : ndarray of shape (k,)
+        Arc positions (m) and ``tau`` there; ``tau`` is linear between them.
+    a, b : ndarray of shape (m, 2)
+        Each subtracted piece's start and end (m), oriented along the line.
+    wa, wb : ndarray of shape (m,)
+        The subtracted strength ``1 - tau`` at ``a`` and ``b`` (1 on a run-on ray).
+    """
+
+    s: np.ndarray
+    tau: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    wa: np.ndarray
+    wb: np.ndarray
+
+    def at(self, s: np.ndarray) -> np.ndarray:
+        """``tau`` at arc positions ``s`` (m): linear between the nodes."""
+        return np.interp(s, self.s, self.tau)
+
+
+def _smoothstep(u: np.ndarray) -> np.ndarray:
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def taper_of(coords: np.ndarray, open_ends: tuple[bool, bool], length: float) -> Taper:
+    """The strength of line ``coords`` (k, 2) whose ``open_ends`` (head, tail) stop inside
+    the survey: ``tau = smoothstep(a / length)``, ``a`` the arc distance (m) to the nearest
+    open end, taken at the line's vertices and 16 nodes over each taper, linear between.
+    Subtracted: ``1 - tau`` on each piece between nodes, and the run-on ray beyond each open
+    end (strength 1)."""
+    import shapely
+
+    line = shapely.LineString(coords)
+    total = float(line.length)
+    vertex_s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(coords, axis=0).T))])
+    nodes = [vertex_s]
+    if open_ends[0]:
+        nodes.append(np.linspace(0.0, min(length, total), 17))
+    if open_ends[1]:
+        nodes.append(np.linspace(max(total - length, 0.0), total, 17))
+    if all(open_ends) and 2.0 * length > total:
+        nodes.append([0.5 * total])  # both tapers meet: tau's peak
+    s = np.unique(np.clip(np.concatenate(nodes), 0.0, total))
+    a = np.full_like(s, np.inf)  # arc distance to the nearest open end, m
+    if open_ends[0]:
+        a = np.minimum(a, s)
+    if open_ends[1]:
+        a = np.minimum(a, total - s)
+    tau = _smoothstep(a / length)
+    pts = shapely.get_coordinates(shapely.line_interpolate_point(line, s))
+    keep = np.flatnonzero((tau[:-1] < 1.0) | (tau[1:] < 1.0))  # pieces with 1 - tau > 0
+    A, B = [pts[keep]], [pts[keep + 1]]
+    wa, wb = [1.0 - tau[keep]], [1.0 - tau[keep + 1]]
+    if open_ends[0]:  # the run-on ray before the head, towards it
+        A.append([coords[0] - REACH_M * unit(coords[1] - coords[0])])
+        B.append([coords[0]])
+        wa.append([1.0])
+        wb.append([1.0])
+    if open_ends[1]:  # the run-on ray beyond the tail
+        A.append([coords[-1]])
+        B.append([coords[-1] + REACH_M * unit(coords[-1] - coords[-2])])
+        wa.append([1.0])
+        wb.append([1.0])
+    return Taper(s, tau, np.vstack(A), np.vstack(B), np.concatenate(wa), np.concatenate(wb))
+
+
+def double_layer(xy: np.ndarray, a: np.ndarray, b: np.ndarray, wa: np.ndarray, wb: np.ndarray):
+    """The double layer (1 / 2 pi) sum_pieces integral w(t) dtheta_x(t) at ``xy`` (n, 2) of
+    straight pieces from ``a`` to ``b`` (m, 2) with strength linear from ``wa`` to ``wb``,
+    shape (n,). It jumps by ``w`` across a piece, up to its left.
+
+    Closed form: with ``x = a + t0 u + h n`` (``u`` along the piece, ``n`` its left normal)
+    and ``X = t - t0``, ``dtheta = h dX / (X^2 + h^2)``, so for ``w = alpha + beta t``::
+
+        integral = (alpha + beta t0) * angle + beta * (h / 2) * log((X2^2 + h^2) / (X1^2 + h^2))
+
+    ``angle`` the one the piece subtends at ``x`` (atan2 of cross and dot).
+    """
+    xy = np.asarray(xy, dtype=float)
+    d = b - a
+    ell = np.hypot(d[:, 0], d[:, 1])
+    u = d / ell[:, None]
+    beta = (wb - wa) / ell
+    out = np.empty(len(xy))
+    for lo in range(0, len(xy), _CHUNK):
+        p = xy[lo : lo + _CHUNK]
+        rx = p[:, 0:1] - a[:, 0]
+        ry = p[:, 1:2] - a[:, 1]
+        t0 = rx * u[:, 0] + ry * u[:, 1]
+        h = ry * u[:, 0] - rx * u[:, 1]  # (x - a) . n, n = (-u_y, u_x)
+        h[h == 0.0] = -0.0  # a point on a piece is on its right, as left_side has it
+        x1, x2 = -t0, ell - t0
+        angle = np.arctan2(h * (x2 - x1), x1 * x2 + h * h)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log = np.log(np.maximum(x2 * x2 + h * h, 1e-300) / np.maximum(x1 * x1 + h * h, 1e-300))
+        ramp = np.where(beta == 0.0, 0.0, 0.5 * h * log)  # 0 where the strength is constant
+        out[lo : lo + _CHUNK] = ((wa + beta * t0) * angle + beta * ramp).sum(axis=1)
+    return out / (2.0 * np.pi)
