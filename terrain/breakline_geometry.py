@@ -33,7 +33,17 @@ import numpy as np
 
 from .errors import bad_input
 
-__all__ = ["Taper", "double_layer", "left_side", "signed_distances", "taper_of"]
+__all__ = [
+    "Taper",
+    "arc_positions",
+    "double_layer",
+    "left_side",
+    "line_coords",
+    "median_spacing",
+    "plane_columns",
+    "signed_distances",
+    "taper_of",
+]
 
 #: How far beyond its ends a breakline is run on straight to split the plane, m.
 REACH_M = 1e7
@@ -110,6 +120,10 @@ class Taper:
         Each subtracted piece's start and end (m), oriented along the line.
     wa, wb : ndarray of shape (m,)
         The subtracted strength ``1 - tau`` at ``a`` and ``b`` (1 on a run-on ray).
+    ends : tuple of (ndarray (2,), ndarray (2,))
+        Each open end and its outward unit tangent.
+    length : float
+        The taper, m.
     """
 
     s: np.ndarray
@@ -118,10 +132,21 @@ class Taper:
     b: np.ndarray
     wa: np.ndarray
     wb: np.ndarray
+    ends: tuple
+    length: float
 
     def at(self, s: np.ndarray) -> np.ndarray:
         """``tau`` at arc positions ``s`` (m): linear between the nodes."""
         return np.interp(s, self.s, self.tau)
+
+    def band(self, xy: np.ndarray) -> np.ndarray:
+        """``tau`` carried across the plane, (n,): the product over the open ends of
+        ``smoothstep(-u / length)``, ``u`` (m) the distance past the end along its outward
+        tangent: 1 behind the tapers, 0 beyond an end. On the line it is ``tau``."""
+        out = np.ones(len(xy))
+        for end, tangent in self.ends:
+            out *= _smoothstep(-((xy - end) @ tangent) / self.length)
+        return out
 
 
 def _smoothstep(u: np.ndarray) -> np.ndarray:
@@ -131,44 +156,45 @@ def _smoothstep(u: np.ndarray) -> np.ndarray:
 
 def taper_of(coords: np.ndarray, open_ends: tuple[bool, bool], length: float) -> Taper:
     """The strength of line ``coords`` (k, 2) whose ``open_ends`` (head, tail) stop inside
-    the survey: ``tau = smoothstep(a / length)``, ``a`` the arc distance (m) to the nearest
-    open end, taken at the line's vertices and 16 nodes over each taper, linear between.
-    Subtracted: ``1 - tau`` on each piece between nodes, and the run-on ray beyond each open
-    end (strength 1)."""
+    the survey: :meth:`Taper.band` on the line (on a straight end, ``smoothstep`` of the arc
+    distance to it over ``length`` m), taken at the line's vertices and every ``length / 64``
+    m, linear between (within 1e-4 of the smoothstep). Subtracted: ``1 - tau`` on each piece
+    between nodes where it is not 0, and the run-on ray beyond each open end (strength 1)."""
     import shapely
 
     line = shapely.LineString(coords)
     total = float(line.length)
+    ends = []
+    if open_ends[0]:
+        ends.append((coords[0].copy(), unit(coords[0] - coords[1])))
+    if open_ends[1]:
+        ends.append((coords[-1].copy(), unit(coords[-1] - coords[-2])))
     vertex_s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(coords, axis=0).T))])
-    nodes = [vertex_s]
-    if open_ends[0]:
-        nodes.append(np.linspace(0.0, min(length, total), 17))
-    if open_ends[1]:
-        nodes.append(np.linspace(max(total - length, 0.0), total, 17))
-    if all(open_ends) and 2.0 * length > total:
-        nodes.append([0.5 * total])  # both tapers meet: tau's peak
-    s = np.unique(np.clip(np.concatenate(nodes), 0.0, total))
-    a = np.full_like(s, np.inf)  # arc distance to the nearest open end, m
-    if open_ends[0]:
-        a = np.minimum(a, s)
-    if open_ends[1]:
-        a = np.minimum(a, total - s)
-    tau = _smoothstep(a / length)
+    s = np.unique(
+        np.clip(np.concatenate([vertex_s, np.arange(0.0, total, length / 64.0)]), 0, total)
+    )
     pts = shapely.get_coordinates(shapely.line_interpolate_point(line, s))
+    partial = Taper(s, np.ones_like(s), pts[:0], pts[:0], s[:0], s[:0], tuple(ends), length)
+    tau = partial.band(pts)
     keep = np.flatnonzero((tau[:-1] < 1.0) | (tau[1:] < 1.0))  # pieces with 1 - tau > 0
     A, B = [pts[keep]], [pts[keep + 1]]
     wa, wb = [1.0 - tau[keep]], [1.0 - tau[keep + 1]]
-    if open_ends[0]:  # the run-on ray before the head, towards it
-        A.append([coords[0] - REACH_M * unit(coords[1] - coords[0])])
-        B.append([coords[0]])
+    for (end, tangent), tail in zip(ends, [k == 1 for k in (0, 1) if open_ends[k]], strict=True):
+        far = end + REACH_M * tangent  # the run-on ray beyond an open end, along the line
+        A.append([end if tail else far])
+        B.append([far if tail else end])
         wa.append([1.0])
         wb.append([1.0])
-    if open_ends[1]:  # the run-on ray beyond the tail
-        A.append([coords[-1]])
-        B.append([coords[-1] + REACH_M * unit(coords[-1] - coords[-2])])
-        wa.append([1.0])
-        wb.append([1.0])
-    return Taper(s, tau, np.vstack(A), np.vstack(B), np.concatenate(wa), np.concatenate(wb))
+    return Taper(
+        s,
+        tau,
+        np.vstack(A),
+        np.vstack(B),
+        np.concatenate(wa),
+        np.concatenate(wb),
+        tuple(ends),
+        float(length),
+    )
 
 
 def double_layer(xy: np.ndarray, a: np.ndarray, b: np.ndarray, wa: np.ndarray, wb: np.ndarray):
@@ -203,3 +229,40 @@ def double_layer(xy: np.ndarray, a: np.ndarray, b: np.ndarray, wa: np.ndarray, w
         ramp = np.where(beta == 0.0, 0.0, 0.5 * h * log)  # 0 where the strength is constant
         out[lo : lo + _CHUNK] = ((wa + beta * t0) * angle + beta * ramp).sum(axis=1)
     return out / (2.0 * np.pi)
+
+
+def plane_columns(xy: np.ndarray) -> np.ndarray | None:
+    """Columns of a plane through samples ``xy`` (m, 2) beside a line, (m, 3): 1, dx, dy
+    about their centre, from 6 samples; (m, 2): 1 and the distance along their own line when
+    4 or more lie on one (a single straight track across the breakline); else None."""
+    c = xy - xy.mean(axis=0)
+    plane = np.column_stack([np.ones(len(xy)), c])
+    rank = np.linalg.matrix_rank(plane)
+    if len(xy) >= 6 and rank == 3:
+        return plane
+    if len(xy) < 4 or rank != 2:
+        return None
+    along = c @ np.linalg.svd(c, full_matrices=False)[2][0]  # on their principal axis, m
+    return np.column_stack([plane[:, 0], along]) if np.ptp(along) > 0 else None
+
+
+def line_coords(line: Any, j: int) -> np.ndarray:
+    coords = getattr(line, "coords", line)  # a shapely LineString, or (k, 2) vertices
+    xy = np.asarray(coords, dtype=float)
+    if xy.ndim != 2 or xy.shape[0] < 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        raise bad_input(
+            f"lines[{j}]",
+            getattr(xy, "shape", xy),
+            "a line of at least 2 finite (x, y) vertices in the samples' CRS, m",
+            "pass a shapely LineString or an array of shape (k, 2)",
+        )
+    if np.any(np.hypot(*np.diff(xy, axis=0).T) == 0):
+        raise bad_input(f"lines[{j}]", "repeated vertex", "distinct consecutive vertices", "")
+    return xy
+
+
+def median_spacing(xy: np.ndarray) -> float:
+    """The samples' median nearest-neighbour distance, m."""
+    from scipy.spatial import cKDTree
+
+    return float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))

@@ -131,10 +131,9 @@ def step_notes(mean: Any) -> list[str]:
     coef, cov = getattr(mean, "coef_", None), getattr(mean, "coef_cov_", None)
     if type(mean).__name__ != "BreaklineMean" or coef is None:
         return []
-    n = len(mean.lines)
     out = []
-    for j in range(n):
-        k = len(coef) - n + j
+    for j in range(len(mean.lines)):
+        k = mean.coef_names.index(f"step{j + 1}_m")
         text = (
             f"line {j + 1}: step {coef[k]:.2f} +- {np.sqrt(cov[k, k]):.2f} m up to its left, "
             f"{mean.widths_[j]:g} m wide"
