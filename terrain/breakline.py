@@ -25,10 +25,11 @@ continuous round the end, so a cliff that fades out inside the survey puts no st
 from __future__ import annotations
 
 import copy
-from numbers import Real
+import hashlib
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.special import expit
 
 from .breakline_geometry import (
@@ -41,6 +42,7 @@ from .breakline_geometry import (
     signed_distances,
     taper_of,
 )
+from .breakline_settings import per_line, setting_repr
 from .errors import NotFittedError, bad_input
 from .linear_mean import (
     check_coefficients,
@@ -60,35 +62,6 @@ WIDTHS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
 #: first guess.
 TAPERS = (5.0, 7.0, 10.0, 14.0, 20.0, 28.0, 40.0, 56.0, 80.0, 113.0, 160.0)
 _TAPER_START = 40.0
-
-
-def _positive(value: Any) -> bool:
-    return isinstance(value, Real) and not isinstance(value, bool) and 0 < value < np.inf
-
-
-def _per_line(
-    value: Any, name: str, n: int, example: str, none_ok: bool = False
-) -> tuple[Any, tuple | None]:
-    """``value`` of a per-line setting (``width``, ``taper``): ``"auto"``, a positive number
-    (m) for every line, or one per line (what a fit chose, given back; ``None`` for a line
-    it does not apply to where ``none_ok``); ``(setting, fitted)``."""
-    if isinstance(value, str) and value == "auto":
-        return "auto", None
-    if _positive(value):
-        return float(value), (float(value),) * n
-    if (
-        np.ndim(value) == 1
-        and len(value) == n
-        and all(_positive(v) or (none_ok and v is None) for v in value)
-    ):
-        out = tuple(None if v is None else float(v) for v in value)
-        return out, out
-    raise bad_input(
-        name,
-        value,
-        f'"auto", a positive {name} in m, or {n} of them (one per line)',
-        f"e.g. {name}={example}",
-    )
 
 
 class BreaklineMean:
@@ -154,8 +127,8 @@ class BreaklineMean:
                 'e.g. base="constant", or a DEM mean with offset="fit" (a + b * DEM)',
             )
         n = len(self.lines)
-        self.width, self.widths_ = _per_line(width, "width", n, '"auto"')
-        self.taper, self.tapers_ = _per_line(taper, "taper", n, '"auto" or 40.0', True)
+        self.width, self.widths_ = per_line(width, "width", n, '"auto"')
+        self.taper, self.tapers_ = per_line(taper, "taper", n, '"auto" or 40.0', True)
         self.open_ends_: tuple[tuple[bool, bool], ...] | None = None
         self.coef_: np.ndarray | None = None
         self.coef_cov_: np.ndarray | None = None
@@ -213,17 +186,18 @@ class BreaklineMean:
 
     def _geometry(self, xy: np.ndarray, within: float) -> dict[str, Any]:
         """What the step columns need at ``xy`` (n, 2): signed distances within ``within``
-        m, and for lines with an open end the arc positions of the nearest points there."""
+        m, and room for the arc positions of the points' nearest points on each line
+        (:meth:`_arcs`, found when asked)."""
         D = self.signed_distances(xy, within)
-        arcs = []
-        for j, ends in enumerate(self._open()):
-            s = None
-            if any(ends):
-                near = np.isfinite(D[:, j])
-                s = np.full(len(xy), np.nan)
-                s[near] = arc_positions(xy[near], self.lines[j])
-            arcs.append(s)
+        arcs = [np.full(len(xy), np.nan) for _ in self.lines]
         return {"xy": xy, "D": D, "s": arcs, "layers": {}}
+
+    def _arcs(self, geom: dict[str, Any], j: int, idx: np.ndarray) -> np.ndarray:
+        """Arc positions (m) on line ``j`` of ``geom``'s points ``idx``, found once."""
+        s = geom["s"][j]
+        todo = idx[np.isnan(s[idx])]
+        s[todo] = arc_positions(geom["xy"][todo], self.lines[j])
+        return s[idx]
 
     def _columns(
         self, geom: dict[str, Any], widths: Any, tapers: Any
@@ -246,10 +220,18 @@ class BreaklineMean:
                 )
             taper, layer = self._layer(geom, j, float(tapers[j]))
             H = (D[:, j] > 0).astype(float)
-            near = np.isfinite(D[:, j])
-            jump = np.zeros(len(D))
-            jump[near] = taper.at(geom["s"][j][near]) * (S[near, j] - H[near])
-            S[:, j] = H - layer + jump
+            near = np.flatnonzero(np.isfinite(D[:, j]))
+            logistic = S[near, j]
+            # tau of each point's nearest point on the line: 1 off the taper, i.e. where
+            # the taper's nodes lie farther than the line plus half a piece
+            tau = np.ones(near.size)
+            reach = np.abs(D[near, j]) + taper.piece
+            bound = float(reach.max()) if near.size else 0.0
+            on = cKDTree(taper.zone).query(geom["xy"][near], distance_upper_bound=bound)[0]
+            on = np.flatnonzero(on <= reach)
+            tau[on] = taper.at(self._arcs(geom, j, near[on]))
+            S[:, j] = H - layer
+            S[near, j] += tau * (logistic - H[near])
             hinges.append(layer - H * (1.0 - taper.band(geom["xy"])))
         return S, np.column_stack(hinges) if hinges else np.zeros((len(D), 0))
 
@@ -282,9 +264,19 @@ class BreaklineMean:
                 'BreaklineMean(width="auto") chooses its widths in fit. Fix: let TerrainGP '
                 "fit it, call mean.fit(xy, z) first, or give a width in m."
             )
-        xy = check_xy(xy)
-        geom = self._geometry(xy, _FLAT * float(np.max(widths)))
-        return self._columns(geom, widths, self.tapers_ if tapers is None else tapers)
+        xy = np.ascontiguousarray(check_xy(xy))
+        tapers = self.tapers_ if tapers is None else tapers
+        # the GP asks for the samples' and the grid's columns more than once: kept (the last
+        # four point sets, by content) on every copy of this mean
+        digest = hashlib.blake2b(xy.tobytes(), digest_size=16).digest()
+        key = (digest, xy.shape, tuple(map(float, widths)), tuple(tapers or ()), self._open())
+        cache = self.__dict__.setdefault("_columns_cache", {})
+        if key not in cache:
+            if len(cache) >= 4:
+                cache.pop(next(iter(cache)))
+            geom = self._geometry(xy, _FLAT * float(np.max(widths)))
+            cache[key] = self._columns(geom, widths, tapers)
+        return cache[key][0].copy(), cache[key][1].copy()
 
     def basis(self, xy: np.ndarray) -> np.ndarray:
         """Design matrix ``[h_base(x), S_1(x), ..., hinges]``, shape (n, n_coef): the
@@ -388,12 +380,10 @@ class BreaklineMean:
         geom = self._geometry(xy, reach)
         D = geom["D"]
         planes, rows = [], np.zeros(len(xy), dtype=bool)  # (samples, their plane's columns)
-        for j, coords in enumerate(self.lines):
+        for j in range(len(self.lines)):
             near = np.abs(D[:, j]) <= reach
             idx = np.flatnonzero(near)
-            along = geom["s"][j]
-            along = along[idx] if along is not None else arc_positions(xy[idx], coords)
-            stretch = np.floor(along / (2.0 * reach))
+            stretch = np.floor(self._arcs(geom, j, idx) / (2.0 * reach))
             both = 0
             for k in np.unique(stretch):
                 m = idx[stretch == k]
@@ -414,7 +404,7 @@ class BreaklineMean:
         kept = {
             "xy": xy[rows],
             "D": D[rows],
-            "s": [None if s is None else s[rows] for s in geom["s"]],
+            "s": [s[rows] for s in geom["s"]],
             "layers": {},
         }
         return {"geom": kept, "planes": planes, "rows": rows}
@@ -454,9 +444,9 @@ class BreaklineMean:
 
     def __repr__(self) -> str:
         n, base = len(self.lines), self.base
-        shape = _setting_repr("width", self.width, self.widths_)
+        shape = setting_repr("width", self.width, self.widths_)
         if any(any(ends) for ends in self._open()):
-            shape += ", " + _setting_repr("taper", self.taper, self.tapers_)
+            shape += ", " + setting_repr("taper", self.taper, self.tapers_)
         if self.coef_ is None:
             return f"BreaklineMean({n} line(s), {shape}, base={base!r})"
         p = int(base.n_coef)  # the base with its own coefficients, then the steps
@@ -484,14 +474,3 @@ class BreaklineMean:
 
 #: Attributes of the mean itself, never read through to its base.
 _OWN = ("base", "lines", "width", "widths_", "taper", "tapers_", "open_ends_", "coef_")
-
-
-def _setting_repr(name: str, setting: Any, fitted: Any) -> str:
-    def fmt(values: Any) -> str:
-        return ", ".join("-" if v is None else f"{v:g}" for v in values)
-
-    if isinstance(setting, tuple):
-        return f"{name}=({fmt(setting)}) m"
-    if setting != "auto":
-        return f"{name}={setting:g} m"
-    return f"{name}='auto'" + (f" ({fmt(fitted)} m)" if fitted is not None else "")

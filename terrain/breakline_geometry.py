@@ -124,6 +124,11 @@ class Taper:
         Each open end and its outward unit tangent.
     length : float
         The taper, m.
+    zone : ndarray of shape (j, 2)
+        The nodes of the line where ``tau < 1`` or next to one (the taper's pieces' ends).
+    piece : float
+        Half the longest such piece, m: a point whose nearest point on the line lies on the
+        taper is within its distance to the line plus this of a node.
     """
 
     s: np.ndarray
@@ -134,6 +139,8 @@ class Taper:
     wb: np.ndarray
     ends: tuple
     length: float
+    zone: np.ndarray
+    piece: float
 
     def at(self, s: np.ndarray) -> np.ndarray:
         """``tau`` at arc positions ``s`` (m): linear between the nodes."""
@@ -174,10 +181,12 @@ def taper_of(coords: np.ndarray, open_ends: tuple[bool, bool], length: float) ->
         np.clip(np.concatenate([vertex_s, np.arange(0.0, total, length / 64.0)]), 0, total)
     )
     pts = shapely.get_coordinates(shapely.line_interpolate_point(line, s))
-    partial = Taper(s, np.ones_like(s), pts[:0], pts[:0], s[:0], s[:0], tuple(ends), length)
+    partial = Taper(s, s, pts[:0], pts[:0], s[:0], s[:0], tuple(ends), length, pts, 0.0)
     tau = partial.band(pts)
     keep = np.flatnonzero((tau[:-1] < 1.0) | (tau[1:] < 1.0))  # pieces with 1 - tau > 0
     A, B = [pts[keep]], [pts[keep + 1]]
+    zone = np.unique(np.concatenate([keep, keep + 1]))
+    piece = 0.5 * float(np.max(np.diff(s)[keep])) if keep.size else 0.0
     wa, wb = [1.0 - tau[keep]], [1.0 - tau[keep + 1]]
     for (end, tangent), tail in zip(ends, [k == 1 for k in (0, 1) if open_ends[k]], strict=True):
         far = end + REACH_M * tangent  # the run-on ray beyond an open end, along the line
@@ -194,6 +203,8 @@ def taper_of(coords: np.ndarray, open_ends: tuple[bool, bool], length: float) ->
         np.concatenate(wb),
         tuple(ends),
         float(length),
+        pts[zone] if zone.size else np.asarray(ends[0][0])[None, :],
+        piece,
     )
 
 
