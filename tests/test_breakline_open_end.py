@@ -147,3 +147,20 @@ def test_tapers_given_back_rebuild_the_same_mean_and_bad_ones_are_refused(dying_
     for bad in (0.0, -5.0, "long", (40.0,), (40.0, float("inf"))):
         with pytest.raises(InputError, match="taper"):
             BreaklineMean(lines, taper=bad)
+
+
+def test_glacimap_change_rebuilds_the_tapers_a_product_records(dying_cliff):
+    # The product's `breaklines` record (BreaklineMean.geojson) read back by `glacimap
+    # change` (toolkit.change_inputs): the same lines, widths and tapers, so the refit on the
+    # same samples gives the same columns.
+    import json
+
+    from toolkit.change_inputs import _mean_from_provenance
+
+    xy, f, noise, q, fq, step, line = dying_cliff
+    z = f + step(xy) + noise
+    fitted = BreaklineMean([line(-100, 230), line(-100, 400) + [0.0, 60.0]]).fit(xy, z)
+    record = json.dumps(fitted.geojson())
+    rebuilt = _mean_from_provenance(repr(fitted), None, None, record)
+    assert rebuilt.width == fitted.widths_ and rebuilt.taper == fitted.tapers_
+    np.testing.assert_allclose(rebuilt.fit(xy, z).basis(q), fitted.basis(q), atol=1e-12)
