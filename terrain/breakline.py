@@ -14,7 +14,7 @@ along the line from its first vertex), so ``c_j`` is the step's height (m), up t
 The GP estimates every coefficient by generalised least squares with its uncertainty
 (:mod:`terrain.gp_mean`), which ``elevation_std`` carries. The kernel then fits the ground
 on either side. Each step's width ``w_j`` is given, or chosen by least squares on the
-samples beside its line (``width="auto"``, :meth:`BreaklineMean.choose_widths`).
+samples beside its line (``width="auto"``, :meth:`BreaklineMean.choose_shape`).
 
 An end outside the samples' bounding box is taken as running straight on. An end inside it
 is *open*: the step dies out over the last ``T`` metres before it (the taper, given or chosen
