@@ -20,6 +20,8 @@ An end outside the samples' bounding box is taken as running straight on. An end
 is *open*: the step dies out over the last ``T`` metres before it (the taper, given or chosen
 like the width), and the column is the double layer of :mod:`terrain.breakline_geometry`,
 continuous round the end, so a cliff that fades out inside the survey puts no step beyond it.
+Such a line also has a hinge column (the lift carried on past the taper, less the double
+layer's): its coefficient lets the GLS weigh how far the lifted side's tilt runs on.
 """
 
 from __future__ import annotations
