@@ -31,6 +31,7 @@ import hashlib
 from typing import Any
 
 import numpy as np
+import shapely
 from scipy.spatial import cKDTree
 from scipy.special import expit
 
@@ -41,6 +42,7 @@ from .breakline_geometry import (
     line_coords,
     median_spacing,
     plane_columns,
+    run_on,
     signed_distances,
     taper_of,
 )
@@ -134,7 +136,14 @@ class BreaklineMean:
         self.open_ends_: tuple[tuple[bool, bool], ...] | None = None
         self.coef_: np.ndarray | None = None
         self.coef_cov_: np.ndarray | None = None
-        self._sides = tuple(left_side(xy) for xy in self.lines)
+        for j, xy in enumerate(self.lines):
+            if not shapely.LineString(xy).is_simple:
+                raise bad_input(
+                    f"lines[{j}]",
+                    "a line that crosses itself",
+                    "a line that does not cross itself",
+                    "split it into lines that do not cross themselves",
+                )
 
     # -- the linear-mean protocol (terrain.linear_mean) -------------------------------------
     @property
@@ -183,8 +192,19 @@ class BreaklineMean:
         (n, n_lines): exact (shapely) within ``within`` m of a line; beyond, +-inf (a step
         is flat there). The side is that of the line run on straight beyond its ends."""
         xy = check_xy(xy)
-        pairs = zip(self.lines, self._sides, strict=True)
-        return np.column_stack([signed_distances(xy, c, side, within) for c, side in pairs])
+        return np.column_stack(
+            [signed_distances(xy, c, self._side(j)[1], within) for j, c in enumerate(self.lines)]
+        )
+
+    def _side(self, j: int) -> tuple[Any, Any]:
+        """Line ``j``'s run-on directions and the side it leaves left (kept per open ends:
+        an open end's ray may turn off a line that curls back, :func:`run_on`)."""
+        ends = self._open()[j]
+        cache = self.__dict__.setdefault("_side_cache", {})  # shared by copies
+        if (j, ends) not in cache:
+            directions = run_on(self.lines[j], ends)
+            cache[(j, ends)] = (directions, left_side(self.lines[j], directions))
+        return cache[(j, ends)]
 
     def _geometry(self, xy: np.ndarray, within: float) -> dict[str, Any]:
         """What the step columns need at ``xy`` (n, 2): signed distances within ``within``
@@ -245,7 +265,8 @@ class BreaklineMean:
             tapers = self.__dict__.setdefault("_taper_cache", {})  # shared by copies
             ckey = (j, length, self._open()[j])
             if ckey not in tapers:
-                tapers[ckey] = taper_of(self.lines[j], self._open()[j], length)
+                ends, directions = self._open()[j], self._side(j)[0]
+                tapers[ckey] = taper_of(self.lines[j], ends, length, directions)
             t = tapers[ckey]
             geom["layers"][key] = (t, double_layer(geom["xy"], t.a, t.b, t.wa, t.wb))
         return geom["layers"][key]

@@ -39,6 +39,7 @@ __all__ = [
     "double_layer",
     "left_side",
     "line_coords",
+    "run_on",
     "median_spacing",
     "plane_columns",
     "signed_distances",
@@ -55,15 +56,45 @@ def unit(v: np.ndarray) -> np.ndarray:
     return v / np.hypot(*v)
 
 
-def left_side(coords: np.ndarray):
-    """The half of the plane left of the line ``coords`` (k, 2) run on straight beyond its
-    ends (a prepared shapely polygon); an ``InputError`` when the run-on line crosses
-    itself."""
+#: Turns (degrees) tried for the ray beyond an open end when the straight one would cross
+#: the line (an arc of more than 180 degrees): within 90 of the tangent, where the taper is 0.
+_TURNS = (0.0, 20.0, -20.0, 40.0, -40.0, 60.0, -60.0, 80.0, -80.0)
+
+
+def _turn(v: np.ndarray, degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    return np.array([np.cos(a) * v[0] - np.sin(a) * v[1], np.sin(a) * v[0] + np.cos(a) * v[1]])
+
+
+def run_on(coords: np.ndarray, open_ends: tuple[bool, bool] = (False, False)):
+    """The directions (unit, away from the line) in which line ``coords`` (k, 2) is run on
+    beyond its head and tail: straight on; at an open end, if the straight ray would cross
+    the line, the first of :data:`_TURNS` that does not (the ray only splits the plane
+    there: its double layer is subtracted again, :func:`taper_of`)."""
+    import itertools
+
+    import shapely
+
+    out = [unit(coords[0] - coords[1]), unit(coords[-1] - coords[-2])]
+    turns = [_TURNS if is_open else (0.0,) for is_open in open_ends]
+    for a, b in itertools.product(*turns):
+        head, tail = _turn(out[0], a), _turn(out[1], b)
+        ends = [coords[0] + REACH_M * head, coords[-1] + REACH_M * tail]
+        if shapely.LineString(np.vstack([ends[0], coords, ends[1]])).is_simple:
+            return head, tail
+    return tuple(out)  # crosses whatever: left_side says so
+
+
+def left_side(coords: np.ndarray, directions: Any = None):
+    """The half of the plane left of the line ``coords`` (k, 2) run on beyond its ends
+    (straight, or along ``directions``, :func:`run_on`), a prepared shapely polygon; an
+    ``InputError`` when the run-on line crosses itself."""
     import shapely
     from shapely.ops import split
 
-    head = coords[0] - REACH_M * unit(coords[1] - coords[0])
-    tail = coords[-1] + REACH_M * unit(coords[-1] - coords[-2])
+    directions = run_on(coords) if directions is None else directions
+    head = coords[0] + REACH_M * directions[0]
+    tail = coords[-1] + REACH_M * directions[1]
     line = shapely.LineString(np.vstack([head, coords, tail]))
     c = coords.mean(axis=0)
     r = 0.5 * REACH_M  # the run-on ends lie beyond the box: the line cuts it
@@ -120,8 +151,9 @@ class Taper:
         Each subtracted piece's start and end (m), oriented along the line.
     wa, wb : ndarray of shape (m,)
         The subtracted strength ``1 - tau`` at ``a`` and ``b`` (1 on a run-on ray).
-    ends : tuple of (ndarray (2,), ndarray (2,))
-        Each open end and its outward unit tangent.
+    ends : tuple of (ndarray (2,), ndarray (2,), ndarray (2,) or None)
+        Each open end, the unit direction of the ray it is run on along, and its outward
+        unit tangent where its band is across the line (None: round the ray; :meth:`band`).
     length : float
         The taper, m.
     zone : ndarray of shape (j, 2)
@@ -148,11 +180,21 @@ class Taper:
 
     def band(self, xy: np.ndarray) -> np.ndarray:
         """``tau`` carried across the plane, (n,): the product over the open ends of
-        ``smoothstep(-u / length)``, ``u`` (m) the distance past the end along its outward
-        tangent: 1 behind the tapers, 0 beyond an end. On the line it is ``tau``."""
+        ``smoothstep(r / length)``. ``r`` (m) is the distance back from the end along the
+        line's outward tangent (a band across the line: 1 from ``length`` behind the end, 0
+        beyond it) where only the taper lies within ``length`` of that band's edge;
+        otherwise (a line that curls back past its end) the distance to the ray the end is
+        run on along (0 on the ray, 1 from ``length`` off it). On the line near an end ``r``
+        is the distance to the end; on it ``band`` is ``tau``."""
         out = np.ones(len(xy))
-        for end, tangent in self.ends:
-            out *= _smoothstep(-((xy - end) @ tangent) / self.length)
+        for end, ray, tangent in self.ends:
+            v = xy - end
+            if tangent is not None:  # the ray is within 90 degrees of it: r <= 0 on it
+                r = -(v @ tangent)
+            else:
+                along = np.maximum(v @ ray, 0.0)[:, None]
+                r = np.hypot(*(v - along * ray).T)
+            out *= _smoothstep(r / self.length)
         return out
 
 
@@ -161,26 +203,39 @@ def _smoothstep(u: np.ndarray) -> np.ndarray:
     return u * u * (3.0 - 2.0 * u)
 
 
-def taper_of(coords: np.ndarray, open_ends: tuple[bool, bool], length: float) -> Taper:
+def taper_of(
+    coords: np.ndarray, open_ends: tuple[bool, bool], length: float, directions: Any = None
+) -> Taper:
     """The strength of line ``coords`` (k, 2) whose ``open_ends`` (head, tail) stop inside
-    the survey: :meth:`Taper.band` on the line (on a straight end, ``smoothstep`` of the arc
-    distance to it over ``length`` m), taken at the line's vertices and every ``length / 64``
-    m, linear between (within 1e-4 of the smoothstep). Subtracted: ``1 - tau`` on each piece
-    between nodes where it is not 0, and the run-on ray beyond each open end (strength 1)."""
+    the survey: :meth:`Taper.band` on the line (near an end, ``smoothstep`` of the distance
+    to it over ``length`` m; on a straight end, of the arc distance), taken at the line's
+    vertices and every ``length / 64`` m, linear between (within 1e-4 of the smoothstep).
+    Subtracted: ``1 - tau`` on each piece between nodes where it is not 0, and the run-on
+    ray beyond each open end (strength 1), along ``directions`` (:func:`run_on`; default
+    straight on)."""
     import shapely
 
     line = shapely.LineString(coords)
     total = float(line.length)
-    ends = []
-    if open_ends[0]:
-        ends.append((coords[0].copy(), unit(coords[0] - coords[1])))
-    if open_ends[1]:
-        ends.append((coords[-1].copy(), unit(coords[-1] - coords[-2])))
+    directions = run_on(coords) if directions is None else directions
     vertex_s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(coords, axis=0).T))])
     s = np.unique(
         np.clip(np.concatenate([vertex_s, np.arange(0.0, total, length / 64.0)]), 0, total)
     )
     pts = shapely.get_coordinates(shapely.line_interpolate_point(line, s))
+    ends = []
+    for k in (0, 1):
+        if not open_ends[k]:
+            continue
+        end = coords[0] if k == 0 else coords[-1]
+        tangent = unit(coords[0] - coords[1]) if k == 0 else unit(coords[-1] - coords[-2])
+        # across the line unless the line comes back within the taper of the band's edge
+        # away from its end: there the band would take a step the line still has
+        near = (pts - end) @ tangent > -length
+        run = np.flatnonzero(near if k == 0 else near[::-1])
+        if run.size != run[-1] + 1:
+            tangent = None
+        ends.append((end.copy(), directions[k], tangent))
     partial = Taper(s, s, pts[:0], pts[:0], s[:0], s[:0], tuple(ends), length, pts, 0.0)
     tau = partial.band(pts)
     keep = np.flatnonzero((tau[:-1] < 1.0) | (tau[1:] < 1.0))  # pieces with 1 - tau > 0
@@ -188,8 +243,9 @@ def taper_of(coords: np.ndarray, open_ends: tuple[bool, bool], length: float) ->
     zone = np.unique(np.concatenate([keep, keep + 1]))
     piece = 0.5 * float(np.max(np.diff(s)[keep])) if keep.size else 0.0
     wa, wb = [1.0 - tau[keep]], [1.0 - tau[keep + 1]]
-    for (end, tangent), tail in zip(ends, [k == 1 for k in (0, 1) if open_ends[k]], strict=True):
-        far = end + REACH_M * tangent  # the run-on ray beyond an open end, along the line
+    for (end, ray, _), k in zip(ends, [k for k in (0, 1) if open_ends[k]], strict=True):
+        tail = k == 1
+        far = end + REACH_M * ray  # the run-on ray beyond an open end
         A.append([end if tail else far])
         B.append([far if tail else end])
         wa.append([1.0])

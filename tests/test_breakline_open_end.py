@@ -60,10 +60,52 @@ def test_an_open_end_is_the_double_layer_whose_strength_tapers_off():
         p = np.asarray(shapely.LineString(BENT).interpolate(s).coords)[0]
         v = m.steps(p + np.array([[0.0, 0.01], [0.0, -0.01]]), widths=(1e-4,))[:, 0]
         assert v[0] - v[1] == pytest.approx(jump, abs=0.02)
+    # the hinge column (basis: constant, step, hinge) jumps nowhere: across the line, on
+    # rings round the end, across the ray beyond it
+    hinge = lambda p: m.basis(p)[:, -1]  # noqa: E731
+    for s in (50.0, 185.0, 209.0):
+        p = np.asarray(shapely.LineString(BENT).interpolate(s).coords)[0]
+        v = hinge(p + np.array([[0.0, 0.01], [0.0, -0.01]]))
+        assert abs(v[0] - v[1]) < 2e-3, (s, v)
+    for r in (5.0, 50.0):
+        ring = BENT[-1] + r * np.column_stack([np.cos(theta), np.sin(theta)])
+        assert np.abs(np.diff(hinge(ring))).max() < 5e-3  # measured 2.1e-3 at 50 m: its slope
     # far away: 1 on the left, 0 on the right, going round the open end with the angle
     # (a semi-infinite line's double layer): 3/4 abreast of it, 1/2 beyond it
     far_pts = np.array([[-5e4, 100.0], [-5e4, -100.0], [100.0, 5e4], [5e4, 30.0]])
     np.testing.assert_allclose(m.steps(far_pts)[:, 0], [1.0, 0.0, 0.75, 0.5], atol=0.01)
+
+
+def test_a_line_that_curls_back_has_its_open_ends_run_on_off_it():
+    # A 270-degree arc with both ends inside the survey: run on straight, each end's ray
+    # would cross the arc; an open end's ray only splits the plane (its layer is
+    # subtracted again), so it turns off the arc. Reference: the same quadrature of the
+    # tapered layer over the arc alone (no ray: both ends open).
+    t = np.linspace(0.0, 1.5 * np.pi, 271)
+    arc = 100.0 * np.column_stack([np.cos(t), np.sin(t)])
+    m = BreaklineMean([arc], width=1.0, taper=40.0)
+    m.open_ends_ = ((True, True),)
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(-200, 200, (200, 2))
+    far = np.abs(m.signed_distances(pts, 1e9)[:, 0]) > 40.0
+    geom = shapely.LineString(arc)
+    s = np.linspace(0.0, geom.length, int(geom.length / 0.01) + 1)
+    path = shapely.get_coordinates(geom.interpolate(s))
+    # the strength: a smoothstep of the distance to each end (the chord) over 40 m
+    u = [np.clip(np.hypot(*(path - end).T) / 40.0, 0.0, 1.0) for end in (arc[0], arc[-1])]
+    w = np.prod([v * v * (3 - 2 * v) for v in u], axis=0)
+    ref = []
+    for p in pts[far]:
+        theta = np.arctan2(path[:, 1] - p[1], path[:, 0] - p[0])
+        ref.append(0.5 * (w[:-1] + w[1:]) @ np.angle(np.exp(1j * np.diff(theta))) / (2 * np.pi))
+    # equal up to a constant (the half-plane of a line whose rays are not opposite is the
+    # layer plus a constant other than 1/2; the base's intercept takes it)
+    diff = m.steps(pts[far])[:, 0] - np.asarray(ref)
+    assert np.ptp(diff) < 2e-4  # measured 3.3e-6
+    theta = np.linspace(0.0, 2 * np.pi, 3601)
+    for end in (arc[0], arc[-1]):
+        ring = end + 10.0 * np.column_stack([np.cos(theta), np.sin(theta)])
+        assert np.abs(np.diff(m.steps(ring)[:, 0])).max() < 5e-3
 
 
 def test_a_line_across_the_survey_is_unchanged_by_the_fit():
