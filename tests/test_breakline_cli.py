@@ -223,6 +223,7 @@ def test_process_takes_breaklines_and_finds_no_step_where_there_is_none(tmp_path
     res = runner.invoke(app, ["process", str(example), "--breaklines", str(wkt),
                               "--out", str(out)])  # fmt: skip
     assert res.exit_code == 0, res.output
+    assert "breaklines: line 1: step" in res.output  # said with its 1-sigma and width
     attrs = xr.open_dataset(out / "product.nc").attrs
     text = attrs["mean_function"].split("step1_m=")[1].split()
     height, sd = float(text[0]), float(text[2].rstrip(")"))

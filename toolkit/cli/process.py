@@ -109,6 +109,13 @@ def process_command(
     for name, t in res.summary["timings_s"].items():
         table.add_row(f"time: {name} (s)", f"{t:.1f}")
     console.print(table)
+    if breaklines is not None:  # each step's height, and where it dies out inside the survey
+        from rich.markup import escape
+
+        from toolkit.breaklines_io import step_notes
+
+        for note in step_notes(res.objects["reconstruction"].gp.mean_):
+            console.print(f"breaklines: {escape(note)}")
     if res.removed:
         console.print(
             f"removed {len(res.removed)} product(s) of an earlier run into {res.out} that this "
