@@ -41,12 +41,12 @@ from .breakline_geometry import (
     left_side,
     line_coords,
     median_spacing,
-    plane_columns,
     run_on,
     signed_distances,
     taper_of,
 )
-from .breakline_settings import per_line, setting_repr
+from .breakline_local import local_fit, near_samples
+from .breakline_settings import per_line, read_ends, setting_repr
 from .errors import NotFittedError, bad_input
 from .linear_mean import (
     check_coefficients,
@@ -90,6 +90,9 @@ class BreaklineMean:
         Length (m, along the line) over which a step dies out before an open end, by a
         smoothstep; used only by lines with an end inside the survey. ``"auto"``: from
         :data:`TAPERS`, by the same least squares as the width.
+    ends : "auto", "open" or sequence of (bool, bool), default "auto"
+        Which ends are open: inside the fitted samples' box (``"auto"``), every end (a cliff
+        that stops between the survey and the map's edge), or per line (first, last vertex).
 
     Attributes
     ----------
@@ -101,8 +104,8 @@ class BreaklineMean:
     widths_ : tuple of float or None
         Each line's step width, m (chosen by :meth:`fit` with ``width="auto"``).
     open_ends_ : tuple of (bool, bool) or None
-        Per line, whether its first and last vertex lie inside the fitted samples' bounding
-        box (set by :meth:`fit`; before it every end runs on).
+        Per line, whether its first and last vertex are open (set by :meth:`fit` from
+        ``ends``; before it every end runs on unless ``ends`` says).
     tapers_ : tuple of float or None
         Each line's taper, m (chosen by :meth:`fit` with ``taper="auto"`` for the lines with
         an open end).
@@ -114,6 +117,7 @@ class BreaklineMean:
         base: Any = "constant",
         width: float | str = "auto",
         taper: float | str = "auto",
+        ends: Any = "auto",
     ) -> None:
         from .prior import as_mean_function  # here: prior imports this module
 
@@ -133,6 +137,7 @@ class BreaklineMean:
         n = len(self.lines)
         self.width, self.widths_ = per_line(width, "width", n, '"auto"')
         self.taper, self.tapers_ = per_line(taper, "taper", n, '"auto" or 40.0', True)
+        self.ends = read_ends(ends, n)
         self.open_ends_: tuple[tuple[bool, bool], ...] | None = None
         self.coef_: np.ndarray | None = None
         self.coef_cov_: np.ndarray | None = None
@@ -185,7 +190,17 @@ class BreaklineMean:
         return getattr(self.base, name)
 
     def _open(self) -> tuple[tuple[bool, bool], ...]:
-        return self.open_ends_ or ((False, False),) * len(self.lines)
+        if self.open_ends_ is not None:
+            return self.open_ends_
+        return self.ends if isinstance(self.ends, tuple) else ((False, False),) * len(self.lines)
+
+    def with_ends(self, ends: Any) -> BreaklineMean:
+        """An unfitted copy whose ends are ``ends`` (:func:`read_ends`): the held-out check's
+        folds keep the map's open ends, whatever box their samples leave."""
+        out = copy.copy(self)
+        out.ends = read_ends(ends, len(self.lines))
+        out.open_ends_ = out.coef_ = out.coef_cov_ = None
+        return out
 
     def signed_distances(self, xy: np.ndarray, within: float) -> np.ndarray:
         """Signed distance (m, positive left) from ``xy`` (n, 2) to each line, shape
@@ -329,7 +344,8 @@ class BreaklineMean:
         kernel search fitted as rough ground."""
         xy, z = check_z(xy, z)
         out = copy.copy(self)
-        out.open_ends_ = self.open_ends(xy)
+        ends, n = self.ends, len(self.lines)
+        out.open_ends_ = {"auto": self.open_ends(xy), "open": ((True, True),) * n}.get(ends, ends)
         spacing = median_spacing(xy)  # the samples' median spacing, m: both reaches
         out.widths_, out.tapers_ = out.choose_shape(xy, z, spacing)
         steps, steps_cov = out.local_steps(xy, z, spacing)
@@ -368,12 +384,12 @@ class BreaklineMean:
         if self.width != "auto" and not any(choose):
             return tuple(widths), tuple(tapers)
         reach = max(3.0 * spacing, 16.0)
-        near = self._near(xy, reach)
+        near = near_samples(self, xy, reach)
 
         def rss(j: int, w: float | None = None, t: float | None = None) -> float:
             ws = [*widths[:j], w, *widths[j + 1 :]] if w is not None else widths
             ts = [*tapers[:j], t, *tapers[j + 1 :]] if t is not None else tapers
-            return self._local_fit(z, ws, ts, near)[2]
+            return local_fit(self, z, ws, ts, near)[2]
 
         for j in range(len(self.lines)):
             if self.width == "auto":
@@ -394,59 +410,8 @@ class BreaklineMean:
         """
         spacing = median_spacing(xy) if spacing is None else spacing
         reach = max(5.0 * max(self.widths_), 3.0 * spacing, 10.0)
-        near = self._near(xy, reach)
-        return self._local_fit(z, self.widths_, self.tapers_, near)[:2]
-
-    def _near(self, xy: np.ndarray, reach: float) -> dict[str, Any]:
-        """The samples within ``reach`` of the lines (their :meth:`_geometry`) and the
-        planes of their stretches."""
-        geom = self._geometry(xy, reach)
-        D = geom["D"]
-        planes, rows = [], np.zeros(len(xy), dtype=bool)  # (samples, their plane's columns)
-        for j in range(len(self.lines)):
-            near = np.abs(D[:, j]) <= reach
-            idx = np.flatnonzero(near)
-            stretch = np.floor(self._arcs(geom, j, idx) / (2.0 * reach))
-            both = 0
-            for k in np.unique(stretch):
-                m = idx[stretch == k]
-                plane = plane_columns(xy[m])
-                if plane is None:
-                    near[m] = False  # too few samples for a plane of their own: not used
-                    continue
-                both += int(np.any(D[m, j] > 0) and np.any(D[m, j] < 0))
-                planes.append((m, plane))
-            if both == 0:
-                raise bad_input(
-                    f"lines[{j}]",
-                    "no samples on both sides",
-                    f"samples within {reach:.0f} m of the line on either side of it",
-                    "survey across the breakline, or leave it out",
-                )
-            rows |= near
-        kept = {
-            "xy": xy[rows],
-            "D": D[rows],
-            "s": [s[rows] for s in geom["s"]],
-            "layers": {},
-        }
-        return {"geom": kept, "planes": planes, "rows": rows}
-
-    def _local_fit(self, z, widths, tapers, near) -> tuple[np.ndarray, np.ndarray, float]:
-        """(steps, their covariance, residual sum of squares) of :meth:`local_steps` on the
-        samples of :meth:`_near`."""
-        rows, planes = near["rows"], near["planes"]
-        where = np.full(rows.size, -1)
-        where[rows] = np.arange(int(rows.sum()))
-        cols = np.cumsum([0] + [plane.shape[1] for _, plane in planes])
-        H = np.zeros((int(rows.sum()), cols[-1] + len(self.lines)))
-        for k, (idx, plane) in enumerate(planes):
-            H[where[idx], cols[k] : cols[k + 1]] = plane
-        H[:, cols[-1] :] = self._columns(near["geom"], widths, tapers)[0]
-        beta, cov = ols_coefficients(H, z[rows])
-        rss = float(np.sum((z[rows] - H @ beta) ** 2))
-        n = len(self.lines)
-        return beta[-n:], cov[-n:, -n:], rss
+        near = near_samples(self, xy, reach)
+        return local_fit(self, z, self.widths_, self.tapers_, near)[:2]
 
     def with_coefficients(self, beta: Any, cov: Any) -> BreaklineMean:
         """A copy whose value is ``basis(xy) @ beta`` (``beta`` (n_coef,), ``cov`` its
@@ -496,4 +461,4 @@ class BreaklineMean:
 
 
 #: Attributes of the mean itself, never read through to its base.
-_OWN = ("base", "lines", "width", "widths_", "taper", "tapers_", "open_ends_", "coef_")
+_OWN = ("base", "lines", "width", "widths_", "taper", "tapers_", "ends", "open_ends_", "coef_")

@@ -10,7 +10,7 @@ import numpy as np
 
 from .errors import bad_input
 
-__all__ = ["per_line", "setting_repr"]
+__all__ = ["per_line", "read_ends", "setting_repr"]
 
 
 def _positive(value: Any) -> bool:
@@ -53,3 +53,24 @@ def setting_repr(name: str, setting: Any, fitted: Any) -> str:
     if setting != "auto":
         return f"{name}={setting:g} m"
     return f"{name}='auto'" + (f" ({fmt(fitted)} m)" if fitted is not None else "")
+
+
+def read_ends(value: Any, n: int) -> Any:
+    """``ends`` of a ``BreaklineMean`` with ``n`` lines: ``"auto"`` (open where inside the
+    fitted samples' box), ``"open"`` (every end), or per line a pair of booleans (first,
+    last vertex; what a fit decided, given back); anything else an ``InputError``."""
+    if isinstance(value, str) and value in ("auto", "open"):
+        return value
+    try:
+        pairs = tuple((bool(a), bool(b)) for a, b in value)
+        ok = len(pairs) == n and all(isinstance(e, bool | np.bool_) for pair in value for e in pair)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise bad_input(
+            "ends",
+            value,
+            f'"auto", "open", or {n} pairs of booleans (first, last vertex open)',
+            'e.g. ends="auto": open where the line stops inside the survey',
+        )
+    return pairs

@@ -36,9 +36,16 @@ def fixed_overrides(est: Any) -> dict[str, Any]:
     """The fitted model's kernel, nugget and anisotropy, held fixed, and the GP it chose
     (exact or tiled, with or without per-tile amplitudes), so that a fold with fewer samples
     than the map is not scored with another model (``local_amplitude="auto"`` turns on from
-    1,000)."""
+    1,000); a ``BreaklineMean``'s open ends held too."""
     out = dict(_HYPER_FIXED)
     for name in ("kernel", "nugget", "method", "local_amplitude", "anisotropy"):
         if hasattr(est, name + "_"):
             out[name] = getattr(est, name + "_")
+    # a breakline's open ends are the map's, whatever box a fold's samples leave
+    mean, ends = (
+        getattr(est, "mean", None),
+        getattr(getattr(est, "mean_", None), "open_ends_", None),
+    )
+    if hasattr(mean, "with_ends") and ends is not None:
+        out["mean"] = mean.with_ends(ends)
     return out

@@ -205,4 +205,32 @@ def test_glacimap_change_rebuilds_the_tapers_a_product_records(dying_cliff):
     record = json.dumps(fitted.geojson())
     rebuilt = _mean_from_provenance(repr(fitted), None, None, record)
     assert rebuilt.width == fitted.widths_ and rebuilt.taper == fitted.tapers_
+    assert rebuilt.ends == fitted.open_ends_ == ((False, True), (False, False))
     np.testing.assert_allclose(rebuilt.fit(xy, z).basis(q), fitted.basis(q), atol=1e-12)
+
+
+def test_ends_given_and_held_by_the_heldout_folds(dying_cliff):
+    # ends="open": a cliff that stops between the survey and the map's edge (both ends
+    # outside the samples' box, yet no step runs on beyond them).
+    from terrain.estimator_clone import fixed_overrides
+
+    xy, f, noise, q, fq, step, line = dying_cliff
+    z = f + step(xy) + noise
+    across = line(-100, 400)
+    m = BreaklineMean([across], width=1.0, taper=40.0, ends="open").fit(xy, z)
+    assert m.open_ends_ == ((True, True),)
+    t = (across[-1] - across[-2]) / np.hypot(*(across[-1] - across[-2]))  # run on along t
+    beyond = across[-1] + 50.0 * t + np.outer([2.0, -2.0], [-t[1], t[0]])  # left, right
+    S = m.steps(beyond)[:, 0]
+    assert abs(S[0] - S[1]) < 0.05  # no step past the end (run on: 1.0)
+    assert BreaklineMean([across], width=1.0).fit(xy, z).steps(beyond)[:, 0] @ [1, -1] > 0.99
+    # the held-out check's folds refit the mean with the map's open ends, whatever box
+    # their samples leave (a block cut off the survey's edge may put an end inside it)
+    gp = TerrainGP(mean=BreaklineMean([line(-100, 230)]), seed=0)
+    gp.fit(ElevationSamples(xy, z, 0.05**2))
+    held = fixed_overrides(gp)["mean"]
+    assert held.ends == gp.mean_.open_ends_ == ((False, True),) and held.coef_ is None
+    assert held.width == "auto" and held.taper == "auto"  # the rest re-chosen per fold
+    for bad in ("closed", [(True,)], [(True, "no")], [(True, True), (False, False)]):
+        with pytest.raises(InputError, match="ends"):
+            BreaklineMean([across], ends=bad)

@@ -168,7 +168,8 @@ def _mean_from_provenance(
         lines = [np.asarray(c, float) for c in feature["geometry"]["coordinates"]]
         shape = feature["properties"]  # tapers: None for a line run on at both ends
         tapers = shape.get("tapers_m") or "auto"  # not recorded before 0.37.0: none open
-        return BreaklineMean(lines, base=base, width=shape["widths_m"], taper=tapers)
+        ends = shape.get("open_ends") or "auto"
+        return BreaklineMean(lines, base=base, width=shape["widths_m"], taper=tapers, ends=ends)
     if mean_repr.startswith("ConstantMean(value=None"):
         return "constant"
     if mean_repr.startswith("RasterMean("):
