@@ -95,14 +95,15 @@ def test_the_start_is_the_step_not_the_halves_difference(scarp_survey):
 
 def test_auto_width_finds_the_steps_width(scarp_survey):
     # The survey's step is 1 m wide; a 3 m wide one made from the same draw. The ladder
-    # steps by sqrt(2): the nearest rung or its neighbour (measured 1.0 and 2.8).
+    # (sqrt(2) apart) picks a rung, then the width is refined between its neighbours:
+    # measured 0.91 and 2.55 (1,500 samples on 300 m: few on the ramp, read narrow).
     xy, f, step, noise, line, *_ = scarp_survey
     narrow = BreaklineMean([line]).fit(xy, f + step + noise)
-    assert narrow.width == "auto" and narrow.widths_[0] in (0.7, 1.0, 1.4)
+    assert narrow.width == "auto" and 0.8 < narrow.widths_[0] < 1.25, narrow.widths_
     across = xy[:, 1] - (150 + 30 * np.sin(xy[:, 0] / 60))
     wide = BreaklineMean([line]).fit(xy, f + 3.0 * expit(across / 3.0) + noise)
-    assert wide.widths_[0] in (2.0, 2.8, 4.0)
-    assert "width='auto' (1 m)" in repr(narrow)
+    assert 2.4 < wide.widths_[0] < 3.75, wide.widths_
+    assert f"width='auto' ({narrow.widths_[0]:g} m)" in repr(narrow)
     with pytest.raises(NotFittedError, match="auto"):
         BreaklineMean([line]).steps(xy)
 
