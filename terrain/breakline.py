@@ -31,7 +31,6 @@ import hashlib
 from typing import Any
 
 import numpy as np
-import shapely
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 from scipy.special import expit
@@ -142,6 +141,8 @@ class BreaklineMean:
         self.open_ends_: tuple[tuple[bool, bool], ...] | None = None
         self.coef_: np.ndarray | None = None
         self.coef_cov_: np.ndarray | None = None
+        import shapely  # here: a dependency of the breaklines only
+
         for j, xy in enumerate(self.lines):
             if not shapely.LineString(xy).is_simple:
                 raise bad_input(
@@ -256,26 +257,19 @@ class BreaklineMean:
                     'BreaklineMean(taper="auto") chooses its tapers in fit. Fix: let '
                     "TerrainGP fit it, call mean.fit(xy, z) first, or give a taper in m."
                 )
-            taper, layer = self._layer(geom, j, float(tapers[j]))
-            H = (D[:, j] > 0).astype(float)
-            near = np.flatnonzero(np.isfinite(D[:, j]))
-            logistic = S[near, j]
-            # tau of each point's nearest point on the line: 1 off the taper, i.e. where
-            # the taper's nodes lie farther than the line plus half a piece
-            tau = np.ones(near.size)
-            reach = np.abs(D[near, j]) + taper.piece
-            bound = float(reach.max()) if near.size else 0.0
-            on = cKDTree(taper.zone).query(geom["xy"][near], distance_upper_bound=bound)[0]
-            on = np.flatnonzero(on <= reach)
-            tau[on] = taper.at(self._arcs(geom, j, near[on]))
-            S[:, j] = H - layer
-            S[near, j] += tau * (logistic - H[near])
-            hinges.append(layer - H * (1.0 - taper.band(geom["xy"])))
+            sharp, near, tau, hinge = self._layer(geom, j, float(tapers[j]))
+            logistic = S[near, j]  # the jump given the step's width near the line
+            S[:, j] = sharp
+            S[near, j] += tau * (logistic - (D[near, j] > 0))
+            hinges.append(hinge)
         return S, np.column_stack(hinges) if hinges else np.zeros((len(D), 0))
 
     def _layer(self, geom: dict[str, Any], j: int, length: float):
-        """Line ``j``'s :class:`~terrain.breakline_geometry.Taper` at ``length`` m and its
-        subtracted double layer on ``geom``'s points (kept: the same at every width)."""
+        """What line ``j``'s columns at a taper of ``length`` m take from ``geom``'s points
+        whatever the width (kept for the width's ladder): the sharp step ``H - layer`` (the
+        double layer of the tapered strength, :mod:`terrain.breakline_geometry`), the points
+        within reach of the line and ``tau`` of their nearest points on it, and the hinge
+        column ``layer - H (1 - band)``."""
         key = (j, length)
         if key not in geom["layers"]:
             tapers = self.__dict__.setdefault("_taper_cache", {})  # shared by copies
@@ -283,8 +277,20 @@ class BreaklineMean:
             if ckey not in tapers:
                 ends, directions = self._open()[j], self._side(j)[0]
                 tapers[ckey] = taper_of(self.lines[j], ends, length, directions)
-            t = tapers[ckey]
-            geom["layers"][key] = (t, double_layer(geom["xy"], t.a, t.b, t.wa, t.wb))
+            t, D = tapers[ckey], geom["D"][:, j]
+            layer = double_layer(geom["xy"], t.a, t.b, t.wa, t.wb)
+            H = (D > 0).astype(float)
+            near = np.flatnonzero(np.isfinite(D))
+            # tau of each point's nearest point on the line: 1 off the taper, i.e. where
+            # the taper's nodes lie farther than the line plus half a piece
+            tau = np.ones(near.size)
+            reach = np.abs(D[near]) + t.piece
+            bound = float(reach.max()) if near.size else 0.0
+            on = cKDTree(t.zone).query(geom["xy"][near], distance_upper_bound=bound)[0]
+            on = np.flatnonzero(on <= reach)
+            tau[on] = t.at(self._arcs(geom, j, near[on]))
+            hinge = layer - H * (1.0 - t.band(geom["xy"]))
+            geom["layers"][key] = (H - layer, near, tau, hinge)
         return geom["layers"][key]
 
     def steps(self, xy: np.ndarray, widths: Any = None, tapers: Any = None) -> np.ndarray:
