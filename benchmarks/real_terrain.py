@@ -34,6 +34,10 @@ time and peak RSS are its own; one at a time: 2 cores):
                   1.5 m wide; session 36's first runs gave ``width=1.0``).
 ``glacimap_breakline_across`` a ``--feature scarp-end``'s line run on across the site, as
                   0.36.0 required of every breakline (a step where the ground has none).
+``glacimap_breakline_found`` the default estimator with the lines
+                  ``terrain.find_breaklines`` finds in the samples (none: the plain map);
+                  ``info.breakline_search`` says what it found, and how far the found lines'
+                  vertices inside the survey lie from the feature's own line.
 ``rbf_tps64``     scipy ``RBFInterpolator``, thin-plate spline, 64 neighbours, smoothing 0.
 ``verde_knn``     ``verde.KNeighbors()`` defaults.
 ``verde_spline``  ``verde.BlockReduce(np.median, spacing=4)`` + ``verde.Spline()``; guarded:
@@ -81,6 +85,7 @@ METHODS = (
     "glacimap_pycno",
     "glacimap_breakline",
     "glacimap_breakline_across",
+    "glacimap_breakline_found",
     "rbf_tps64",
     "verde_knn",
     "verde_spline",
@@ -92,6 +97,7 @@ GLACIMAP = (
     "glacimap_pycno",
     "glacimap_breakline",
     "glacimap_breakline_across",
+    "glacimap_breakline_found",
 )
 WITH_STD = (*GLACIMAP, "pykrige_ok")
 SEED = 0
@@ -354,13 +360,18 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
             if feature != "scarp-end":
                 return {"skipped": "only for --feature scarp-end", "method_s": None}
             line = real_dems.feature_line(truth, "scarp")
-        kw = {
-            "glacimap": {},
-            "glacimap_dem": {"mean": coarse_dem(truth)},
-            "glacimap_pycno": {"mean": PycnophylacticMean(coarse_dem(truth))},
-            "glacimap_breakline": {"mean": BreaklineMean([line])},  # width="auto"
-            "glacimap_breakline_across": {"mean": BreaklineMean([line])},
-        }[method]
+        search_info = None
+        if method == "glacimap_breakline_found":  # the search is part of the method's time
+            found, search_info = _found_lines(samples, line)
+        means = {  # built for the method asked only (a plain site has no feature line)
+            "glacimap": lambda: "constant",
+            "glacimap_dem": lambda: coarse_dem(truth),
+            "glacimap_pycno": lambda: PycnophylacticMean(coarse_dem(truth)),
+            "glacimap_breakline": lambda: BreaklineMean([line]),  # width="auto"
+            "glacimap_breakline_across": lambda: BreaklineMean([line]),
+            "glacimap_breakline_found": lambda: BreaklineMean(found) if found else "constant",
+        }
+        kw = {"mean": means[method]()}
         gp = TerrainGP(seed=0, **kw)
         tf = time.perf_counter()
         gp.fit(samples)
@@ -378,6 +389,8 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
             "gp_method": _jsonable(getattr(gp, "method_", None)),
             "lml": _jsonable(getattr(gp, "log_marginal_likelihood_value_", None)),
         }
+        if search_info is not None:
+            info["breakline_search"] = search_info
         info["heldout"] = _heldout(gp, samples, grid)
     elif method == "rbf_tps64":
         pred, std, info = _peers.rbf_tps(samples, q, neighbors=64)
@@ -410,6 +423,35 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
     out.update(rescaled_coverage(pred, std, truth.values, kappa))
     out.update(method_s=method_s, n_samples=samples.n, info=_jsonable(info))
     return out
+
+
+def _found_lines(samples, truth_line) -> tuple[list, dict[str, Any]]:
+    """``terrain.find_breaklines`` on the samples: the lines, and what was found (with the
+    found vertices' distances, inside the samples' box, to the feature's line when known)."""
+    from terrain import find_breaklines
+
+    search = find_breaklines(samples)
+    info: dict[str, Any] = {
+        "summary": search.summary(),
+        "n_lines": len(search.lines),
+        "steps_m": search.steps_m,
+        "dropped": search.dropped,
+    }
+    if truth_line is not None and search.lines:
+        from shapely import LineString, Point
+
+        ref = LineString(truth_line)
+        lo, hi = samples.xy.min(axis=0), samples.xy.max(axis=0)
+        d = [
+            ref.distance(Point(v))
+            for line in search.lines
+            for v in line
+            if np.all(v >= lo) and np.all(v <= hi)
+        ]
+        if d:
+            info["vertex_offset_median_m"] = float(np.median(d))
+            info["vertex_offset_max_m"] = float(np.max(d))
+    return search.lines, info
 
 
 def _safe_child(func, args, queue) -> None:

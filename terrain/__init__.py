@@ -7,6 +7,7 @@
 from .anisotropy import Anisotropy
 from .baselines import delaunay_linear
 from .breakline import BreaklineMean
+from .breakline_search import BreaklineSearch, find_breaklines
 from .change import difference
 from .coregister import Coregistration, coregister
 from .errors import (
@@ -70,6 +71,7 @@ __all__ = [
     "PycnophylacticMean",
     "RasterMean",
     "BreaklineMean",
+    "BreaklineSearch",
     "ShortChainWarning",
     "SquaredExponential",
     "SumKernel",
@@ -87,6 +89,7 @@ __all__ = [
     "default_outline",
     "default_site",
     "delaunay_linear",
+    "find_breaklines",
     "difference",
     "evaluate",
     "gaussian_field_site",

@@ -24,12 +24,15 @@ __all__ = [
     "breakline_taper",
     "breakline_width",
     "check_breakline_options",
+    "is_search",
     "read_breaklines",
     "step_notes",
     "with_breaklines",
 ]
 
 FIELD = "--breaklines"
+#: ``--breaklines auto``: lines found in the samples (``terrain.find_breaklines``).
+AUTO = "auto"
 
 
 def read_breaklines(
@@ -65,6 +68,11 @@ def read_breaklines(
     return lines
 
 
+def is_search(lines: Any) -> bool:
+    """Whether ``--breaklines`` asks for the lines to be found in the samples (``auto``)."""
+    return isinstance(lines, str | Path) and str(lines).strip().lower() == AUTO
+
+
 def with_breaklines(
     mean: Any,
     lines: Any,
@@ -72,17 +80,32 @@ def with_breaklines(
     taper: float | str = "auto",
     crs: Any = None,
     notes: list[str] | None = None,
+    samples: Any = None,
 ) -> Any:
     """``mean`` with a step across each breakline (``terrain.BreaklineMean``), or ``mean``
     itself when ``lines`` is None. ``lines``: a vector file (:func:`read_breaklines`, read
-    in ``crs``: the map's, its reading said in ``notes``) or vertex arrays already in it;
+    in ``crs``: the map's, its reading said in ``notes``), vertex arrays already in it, or
+    ``"auto"``: found in ``samples`` (``terrain.find_breaklines``; what was found, and what
+    was dropped and why, said in ``notes``; ``mean`` itself when none is);
     ``width``, ``taper``: ``"auto"`` or metres (:func:`breakline_width`,
     :func:`breakline_taper`)."""
     if lines is None:
         return mean
     from terrain import BreaklineMean
 
-    if isinstance(lines, str | Path):
+    if is_search(lines):
+        from terrain import find_breaklines
+
+        if samples is None:
+            raise bad_input(FIELD, AUTO, "the samples to search", "pass samples=")
+        search = find_breaklines(samples)
+        if notes is not None:
+            notes.append(search.summary())
+            notes.extend(f"dropped: {why}" for why in search.dropped)
+        if not search.lines:
+            return mean
+        lines = search.lines
+    elif isinstance(lines, str | Path):
         lines = read_breaklines(Path(lines), crs, notes)
     return BreaklineMean(
         lines, base=mean, width=breakline_width(width), taper=breakline_taper(taper)
@@ -120,7 +143,8 @@ def check_breakline_options(
     work (the file parses and holds lines; width and taper are valid): ``(width, taper)``
     as :func:`breakline_width` and :func:`breakline_taper` give them. The lines themselves
     are read again in the map's CRS when it is known (:func:`with_breaklines`)."""
-    read_breaklines(Path(path))
+    if not is_search(path):
+        read_breaklines(Path(path))
     return breakline_width(width), breakline_taper(taper)
 
 

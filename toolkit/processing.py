@@ -27,7 +27,7 @@ from terrain import RasterMean
 from terrain.atomic import atomic_path
 from terrain.errors import InputError, bad_input
 
-from .breaklines_io import with_breaklines
+from .breaklines_io import is_search, with_breaklines
 from .certify import require_checkpoints_on
 from .config import load_scenario
 from .export._files import output_folder, previous_products, remove_stale, staged_folder
@@ -308,7 +308,11 @@ def _process(
         if cps is not None and bounds is not None:  # on the map? known before localizing
             require_checkpoints_on(cps, map_grid(bounds, resolution, mlog.crs))
         # a step across each breakline (a vector file, read in the map's CRS, or vertices)
-        mean = with_breaklines(prior_mean(prior, settings), *breaklines, crs=mlog.crs)
+        # (``auto``: found in the selected samples, below)
+        search = is_search(breaklines[0])
+        mean = prior_mean(prior, settings)
+        if not search:
+            mean = with_breaklines(mean, *breaklines, crs=mlog.crs)
         # which files made the map, by name and SHA-256 (every product's metadata)
         log_record = None if isinstance(log, MeasurementLog) else input_record("log", log)
         prior_record = input_record("prior", prior)
@@ -319,7 +323,7 @@ def _process(
                 prior_record,
                 input_record("control", control),
                 input_record("checkpoints", checkpoints),
-                input_record("breaklines", _file_or_none(breaklines[0])),
+                input_record("breaklines", None if search else _file_or_none(breaklines[0])),
             )
             if r is not None
         ]
@@ -337,6 +341,9 @@ def _process(
         if cps is not None and bounds is None:  # the grid is new: placed before the fit
             require_checkpoints_on(cps, grid)
         folds = int(settings["certify"]["heldout_folds"])
+        found: list[str] = []
+        if search:  # steps found in the selected samples (terrain.find_breaklines)
+            mean = with_breaklines(mean, *breaklines, notes=found, samples=sel.samples)
         rec = reconstruct_selection(sel, grid, mean, settings, seed, folds)
         rec.product.attrs["inputs"] = json.dumps(
             [{k: r[k] for k in ("role", "name", "sha256")} for r in files]
@@ -359,6 +366,8 @@ def _process(
                 "checkpoints": None if cps is None else str(getattr(cps, "source", "")),
                 "files": files,
             }
+            if found:  # --breaklines auto: what the search found, and dropped and why
+                cert["inputs"]["breakline_search"] = found
             if ctrl is not None:  # which control the graph used: stop / target, and why not
                 c = loc.control or {}
                 used = [f"{u['id']} {u['kind']}" for u in c.get("used", [])]

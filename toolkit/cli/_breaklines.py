@@ -15,7 +15,8 @@ Breaklines = Annotated[
         help="Lines the ground steps across (an ice cliff, a moraine's edge): a GeoPackage, "
         "GeoJSON, Shapefile... (reprojected from its CRS) or WKT (the map's CRS). Step "
         "heights fitted with their 1-sigma; a line that stops inside the survey has its "
-        "step die out towards that end.",
+        'step die out towards that end. "auto": lines found where the samples step '
+        "(terrain.find_breaklines), each kept only where its step is told from zero.",
     ),
 ]
 BreaklineWidth = Annotated[

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
@@ -167,6 +167,13 @@ def _run_demo(out_dir: Path, seed: int, n_samples: int, resolution: float) -> No
     console.print(f"wrote {png} and {out_dir / 'demo_summary.json'}")
 
 
+def _file(lines: Any) -> Any:
+    """The breaklines' file, or None for ``--breaklines auto`` (found, not read)."""
+    from ..breaklines_io import is_search
+
+    return None if is_search(lines) else lines
+
+
 def _reconstruct_csv(
     samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None
 ):
@@ -208,8 +215,10 @@ def _reconstruct_csv(
         from ..breaklines_io import with_breaklines
 
         notes: list[str] = []
-        mean = with_breaklines(mean, *lines, crs=data.crs, notes=notes)
-        console.print(f"breaklines: {escape(notes[0])}")  # e.g. reprojected from EPSG:4326
+        mean = with_breaklines(mean, *lines, crs=data.crs, notes=notes, samples=data)
+        for note in notes:  # e.g. reprojected from EPSG:4326; or what the search found
+            console.print(f"breaklines: {escape(note)}")
+        searched = "; ".join(notes) if _file(lines[0]) is None else None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):
@@ -244,6 +253,8 @@ def _reconstruct_csv(
             "the cells (their 1-sigma is within 10 % of the prior's): the samples do not "
             "constrain most of this grid; narrow --bounds or add samples"
         )
+    if lines is not None and searched:  # what the search found and dropped, with the map
+        rec.product.attrs["breakline_search"] = searched
     # which files made the map, by name and SHA-256 (every product's metadata)
     rec.product.attrs["inputs"] = json.dumps(
         [
@@ -252,7 +263,7 @@ def _reconstruct_csv(
                 input_record("samples", samples),
                 input_record("prior", prior),
                 input_record("checkpoints", cps),
-                input_record("breaklines", None if lines is None else lines[0]),
+                input_record("breaklines", None if lines is None else _file(lines[0])),
             )
             if r is not None
         ]

@@ -1,0 +1,399 @@
+"""Breaklines found in the samples: where the ground steps, for a user who has not drawn them.
+
+A surveyor draws an ice cliff or a scarp as a breakline (:class:`terrain.BreaklineMean`)
+when they know where it is. :func:`find_breaklines` proposes them from the samples alone, in
+the way edge detectors find steps in images (Canny 1986: a local test for a step, the
+strongest response kept where responses crowd, then the edge points linked into lines):
+
+1. **A local test for a step.** Around each centre (the samples, thinned to at most
+   ``MAX_CENTRES``), the samples within ``radius`` m are fitted by a quadratic surface
+   (6 columns), then by the quadratic plus a step ``h * [n . (x - p) > 0]`` across a
+   straight line through ``p`` with normal ``n``, for ``N_DIRECTIONS`` directions and
+   ``N_OFFSETS`` offsets of the line across the disc. The step's reduction of the residual
+   sum of squares is ``(s^T r0)^2 / (s^T s - b^T A^-1 b)`` (partial regression:
+   ``r0`` the quadratic's residuals, ``A = X^T X``, ``b = X^T s``), so all lines of a centre
+   cost one small solve. The best line's ``F = reduction / s2`` (``s2``: the median over
+   centres of the quadratic's residual variance: noise and the ground's roughness at this
+   radius) and its step ``h`` (m).
+2. **Edge points.** A line with ``F >= F_MIN``, ``|h| >= H_MIN * sqrt(s2)`` and at least
+   ``MIN_SIDE`` samples on either side gives an edge point (the point of the line nearest
+   the centre, its direction, its step). Points are kept strongest first, none within
+   ``radius / 2`` of a stronger one (non-maximum suppression).
+3. **Lines.** Edge points are linked when they lie within the link distance (``4 radius``,
+   or 2.5 x the survey's widest gap: steps are seen on the tracks and not between them),
+   both directions agree with the segment between them within ``LINK_ANGLE_DEG`` and the
+   step rises to the same side. Each linked set of at least ``MIN_POINTS`` points is ordered
+   along its principal axis; an end within a link distance of the samples' bounding box is
+   carried past it (the step runs on across the survey), any other end stops half a radius
+   past its last point (an open end: :class:`terrain.BreaklineMean` tapers the step there).
+
+Nothing here fits a GP: a line found is a proposal. The map takes it by the GP's evidence
+(:func:`terrain.breakline_choice.map_with_found_breaklines`): each step's height estimated
+with its 1-sigma, and lines whose step is not told from zero dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from scipy.special import expit
+
+from .errors import bad_input, positive_number
+from .gaps import largest_gap
+from .samples import ElevationSamples
+
+__all__ = ["BreaklineSearch", "find_breaklines"]
+
+#: Scale of the ramps a step must beat, in radii: a logistic rising 12-88 % over a radius.
+RAMP = 1.0 / 4.0
+#: Scale of a step a little softer than sharp, in radii (1 m in a 16 m disc).
+SOFT = 1.0 / 16.0
+#: Smallest disc radius, m: four times the widest step width ``BreaklineMean`` tries.
+MIN_RADIUS = 16.0
+#: Line directions tried at each centre (0 to 180 degrees; the step's sign gives the rest).
+N_DIRECTIONS = 16
+#: Offsets of the line across the disc, from -radius / 2 to radius / 2.
+N_OFFSETS = 9
+#: Samples each side of a tested line, at least.
+MIN_SIDE = 8
+#: Samples in a centre's disc used to size the radius (the median disc holds about this many).
+DISC_SAMPLES = 40
+#: Centres tested, at most (the samples thinned evenly).
+MAX_CENTRES = 6000
+#: A step's reduction of the residual sum of squares, in units of the quadratic's residual
+#: variance (a chi-square with one degree of freedom under no step: 36 is 6 sigma, beyond
+#: the scan's ~10^5 lines tried).
+F_MIN = 36.0
+#: What a step explains beyond the best ramp, in the same units (3 sigma: the ramps are
+#: the same lines, so this is a test of shape, not of place).
+F_SHARP = 9.0
+#: A step at least this many times the quadratic's residual sd.
+H_MIN = 4.0
+#: Directions agree within this many degrees to link two edge points.
+LINK_ANGLE_DEG = 30.0
+#: Edge points this share of the survey's extent apart may be linked (a step seen on two
+#: tracks and not in the gap between them).
+REACH_EXTENT = 0.3
+#: Edge points in a line, at least.
+MIN_POINTS = 3
+#: A line's step (local least squares) at least this many of its sds.
+STEP_Z = 5.0
+
+
+@dataclass(frozen=True)
+class BreaklineSearch:
+    """What :func:`find_breaklines` found.
+
+    Attributes
+    ----------
+    lines : list of ndarray of shape (k, 2)
+        The lines, m, in the samples' CRS, strongest first.
+    steps_m, steps_sd_m : list of float
+        Each line's step and its 1-sigma, m, up to its left, by the local least squares of
+        :meth:`terrain.BreaklineMean.fit` (planes on the stretches beside it).
+    points : list of int
+        Edge points behind each line.
+    dropped : list of str
+        Linked lines not kept, each with its reason (counted, not silently dropped).
+    radius_m : float
+        The disc radius of the local test, m.
+    residual_sd_m : float
+        ``sqrt(s2)``: the quadratic's median residual sd at that radius, m.
+    n_centres, n_edge_points, n_unlinked : int
+        Centres tested, edge points kept after suppression, and edge points in no line
+        (counted, not silently dropped: a step too short to be a line, or a lone bump).
+    edge_points : ndarray of shape (n_edge_points, 2)
+        Where the edge points lie, m.
+    """
+
+    lines: list[np.ndarray]
+    steps_m: list[float]
+    steps_sd_m: list[float]
+    points: list[int]
+    dropped: list[str]
+    radius_m: float
+    residual_sd_m: float
+    n_centres: int
+    n_edge_points: int
+    n_unlinked: int
+    edge_points: np.ndarray = field(repr=False)
+
+    def summary(self) -> str:
+        """One sentence for the console."""
+        found = "; ".join(
+            f"line {j + 1}: {len(line)} vertices, {_length(line):.0f} m, "
+            f"step {h:.2f} +- {sd:.2f} m from {k} edge points"
+            for j, (line, h, sd, k) in enumerate(
+                zip(self.lines, self.steps_m, self.steps_sd_m, self.points, strict=True)
+            )
+        )
+        return (
+            f"breakline search ({self.radius_m:.1f} m discs at {self.n_centres} centres, "
+            f"residual sd {self.residual_sd_m:.2f} m): {len(self.lines)} line(s)"
+            + (f" ({found})" if found else "")
+            + f"; {self.n_unlinked} of {self.n_edge_points} edge points in no line"
+            + (f"; {len(self.dropped)} line(s) dropped" if self.dropped else "")
+        )
+
+
+def _length(line: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(line, axis=0), axis=1).sum())
+
+
+def _radius(xy: np.ndarray) -> float:
+    """The radius whose disc round the median sample holds :data:`DISC_SAMPLES` samples."""
+    k = min(DISC_SAMPLES, len(xy) - 1)
+    return max(float(np.median(cKDTree(xy).query(xy, k=k + 1)[0][:, -1])), MIN_RADIUS)
+
+
+def _surface(u: np.ndarray) -> np.ndarray:
+    """The smooth ground of a disc: a cubic surface in the disc's unit coordinates (10
+    columns; a quadratic left 1 m of misfit on olinda's 36 m discs)."""
+    x, y = u[:, 0], u[:, 1]
+    return np.column_stack([x**0, x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3])
+
+
+def _reductions(X, S, r0, usable):
+    """Each column's reduction of the residual sum of squares beside ``X`` (partial
+    regression), with its numerator ``s^T r0`` and denominator ``s^T s - b^T A^-1 b``."""
+    B = X.T @ S
+    AinvB = np.linalg.lstsq(X.T @ X, B, rcond=None)[0]
+    denom = np.einsum("ij,ij->j", S, S) - np.einsum("ij,ij->j", B, AinvB)
+    num = S.T @ r0
+    red = np.where(usable & (denom > 1e-9), num**2 / np.maximum(denom, 1e-12), 0.0)
+    return red, num, denom
+
+
+def _scan(xy, z, centres, radius):
+    """The best step line of each centre: (F numerator, step, point on line, normal, ok)."""
+    tree = cKDTree(xy)
+    angles = np.pi * np.arange(N_DIRECTIONS) / N_DIRECTIONS
+    normals = np.column_stack([np.cos(angles), np.sin(angles)])  # (d, 2)
+    offsets = radius * np.linspace(-0.5, 0.5, N_OFFSETS)
+    n_c = len(centres)
+    gain = np.zeros(n_c)
+    rss0 = np.full(n_c, np.nan)
+    dof = np.zeros(n_c)
+    best = np.zeros((n_c, 4))  # step, point x, point y, direction index
+    smooth = np.zeros(n_c)  # the best ramp's reduction
+    for i, idx in enumerate(tree.query_ball_point(centres, radius)):
+        if len(idx) < 2 * MIN_SIDE:
+            continue
+        u = (xy[idx] - centres[i]) / radius  # local, unit disc
+        X = _surface(u)
+        zz = z[idx]
+        coef, *_ = np.linalg.lstsq(X, zz, rcond=None)
+        r0 = zz - X @ coef
+        rss0[i], dof[i] = float(r0 @ r0), len(idx) - X.shape[1]
+        proj = (u @ normals.T)[:, :, None] * radius - offsets  # (m, d, o), m from the line
+        S = (proj > 0).reshape(len(idx), -1).astype(float)  # step columns (m, d * o)
+        n_up = S.sum(axis=0)
+        enough = (n_up >= MIN_SIDE) & (len(idx) - n_up >= MIN_SIDE)
+        if not enough.any():
+            continue
+        red, num, denom = _reductions(X, S, r0, enough)
+        # a step a little wider than sharp, and the same lines as ramps: ground that bends
+        # smoothly is fitted as well by a ramp; a step is not
+        flat = proj.reshape(len(idx), -1)
+        soft = _reductions(X, expit(flat / (SOFT * radius)), r0, enough)
+        smooth[i] = _reductions(X, expit(flat / (RAMP * radius)), r0, enough)[0].max()
+        scale = SOFT * radius if soft[0].max() > red.max() else 0.0
+        if scale:
+            red, num, denom = soft
+        j = int(np.argmax(red))
+        d, o = divmod(j, N_OFFSETS)
+        if o in (0, N_OFFSETS - 1):
+            continue  # the line lies beyond the disc's middle: a nearer centre finds it
+        # between the lattice's offsets: the line moved to each gap between the samples'
+        # positions across it within half a lattice step (an indicator changes only there)
+        across = u @ normals[d] * radius
+        half = 0.5 * (offsets[1] - offsets[0])
+        near = np.sort(across[np.abs(across - offsets[o]) <= half])
+        tries = np.r_[offsets[o], 0.5 * (near[1:] + near[:-1])]
+        cols = across[:, None] - tries
+        cols = expit(cols / scale) if scale else (cols > 0).astype(float)
+        n_up = (across[:, None] > tries).sum(axis=0)
+        ok = (n_up >= MIN_SIDE) & (len(idx) - n_up >= MIN_SIDE)
+        fine, fnum, fden = _reductions(X, cols, r0, ok)
+        k = int(np.argmax(fine))
+        gain[i] = fine[k]
+        best[i] = (fnum[k] / fden[k], *(centres[i] + tries[k] * normals[d]), d)
+    return gain, smooth, rss0, dof, best, normals
+
+
+def _suppress(points: np.ndarray, strength: np.ndarray, spacing: float) -> np.ndarray:
+    """Indices kept strongest first, none within ``spacing`` of a stronger kept one."""
+    order = np.argsort(-strength, kind="stable")
+    tree = cKDTree(points)
+    taken = np.zeros(len(points), dtype=bool)
+    kept = []
+    for i in order:
+        if taken[i]:
+            continue
+        kept.append(i)
+        taken[tree.query_ball_point(points[i], spacing)] = True
+    return np.asarray(kept, dtype=int)
+
+
+def _links(pts: np.ndarray, normal: np.ndarray, reach: float) -> tuple[int, np.ndarray]:
+    """Connected sets of edge points linked along their lines (module notes, step 3)."""
+    cos_max = np.cos(np.radians(LINK_ANGLE_DEG))
+    pairs = cKDTree(pts).query_pairs(reach, output_type="ndarray")
+    if len(pairs):
+        a, b = pairs[:, 0], pairs[:, 1]
+        v = pts[b] - pts[a]
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        # |v . u| with u = (-n_y, n_x) the line's direction at each end
+        along_a = np.abs(v[:, 1] * normal[a, 0] - v[:, 0] * normal[a, 1])
+        along_b = np.abs(v[:, 1] * normal[b, 0] - v[:, 0] * normal[b, 1])
+        same = (normal[a] * normal[b]).sum(axis=1) >= cos_max
+        keep = (along_a >= cos_max) & (along_b >= cos_max) & same
+        pairs = pairs[keep]
+    graph = coo_matrix(
+        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])) if len(pairs) else ([], ([], [])),
+        shape=(len(pts), len(pts)),
+    )
+    return connected_components(graph, directed=False)
+
+
+def _polyline(pts, normal, lo, hi, reach, radius) -> np.ndarray:
+    """Edge points ordered along their principal axis; ends carried past the samples' box
+    when within ``reach`` of it, else half a radius past the last point."""
+    centre = pts.mean(axis=0)
+    axis = np.linalg.svd(pts - centre, full_matrices=False)[2][0]
+    line = pts[np.argsort((pts - centre) @ axis, kind="stable")]
+    ends = []
+    for end, inner in ((line[0], line[1]), (line[-1], line[-2])):
+        out = (end - inner) / max(float(np.linalg.norm(end - inner)), 1e-9)
+        # distance along ``out`` to the box's edge
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(out > 0, (hi - end) / out, np.where(out < 0, (lo - end) / out, np.inf))
+        to_edge = float(np.min(t))
+        step = to_edge + radius if to_edge <= reach else 0.5 * radius
+        ends.append(end + step * out)
+    return np.vstack([ends[0], line, ends[1]])
+
+
+def _confirm(line: np.ndarray, xy: np.ndarray, z: np.ndarray, sd: float):
+    """The line's step by :class:`terrain.BreaklineMean`'s local least squares (planes on
+    stretches beside it, its width and taper chosen): ``(step, its sd, "")``, or a reason
+    to drop it (the step not told from zero, smaller than ``H_MIN`` residual sds, or a line
+    the mean refuses)."""
+    from .breakline import BreaklineMean  # here: the mean's module is the heavier one
+    from .errors import InputError
+
+    try:
+        mean = BreaklineMean([line]).fit(xy, z)
+    except InputError as err:
+        return float("nan"), float("nan"), f"{_length(line):.0f} m line refused: {err}"
+    k = mean.coef_names.index("step1_m")
+    step, step_sd = float(mean.coef_[k]), float(np.sqrt(mean.coef_cov_[k, k]))
+    if abs(step) < STEP_Z * step_sd or abs(step) < H_MIN * sd:
+        return (
+            step,
+            step_sd,
+            (
+                f"{_length(line):.0f} m line: step {step:.2f} +- {step_sd:.2f} m, under "
+                f"{STEP_Z:g} sd or {H_MIN:g} x the residual sd ({sd:.2f} m)"
+            ),
+        )
+    return step, step_sd, ""
+
+
+def find_breaklines(samples: ElevationSamples, radius: float | None = None) -> BreaklineSearch:
+    """Propose breaklines where the samples show a step (see the module notes).
+
+    Parameters
+    ----------
+    samples : ElevationSamples
+        The survey, m, in a projected CRS.
+    radius : float, optional
+        Disc radius of the local test, m. Default: the radius whose disc round the median
+        sample holds 40 samples (about 24 m for 3,000 samples on the benchmark's eight
+        tracks over 600 m; 6 m for 50,000).
+
+    Returns
+    -------
+    BreaklineSearch
+        The lines (possibly none), each with its local step and edge points; what was not
+        linked, counted.
+
+    Raises
+    ------
+    terrain.errors.InputError
+        ``samples`` not ElevationSamples or fewer than ``4 * MIN_SIDE`` of them; ``radius``
+        not a positive number.
+    """
+    if not isinstance(samples, ElevationSamples):
+        fix = "wrap arrays with ElevationSamples(xy, z, z_var)"
+        raise bad_input("samples", type(samples).__name__, "terrain.ElevationSamples", fix)
+    if samples.n < 4 * MIN_SIDE:
+        raise bad_input(
+            "samples", f"{samples.n} samples", f"at least {4 * MIN_SIDE}", "survey more ground"
+        )
+    xy, z = samples.xy, samples.z
+    if radius is None:
+        radius = _radius(xy)
+    radius = positive_number("radius", radius, "a disc radius in metres, e.g. 20")
+    stride = max(1, -(-samples.n // MAX_CENTRES))
+    centres = xy[::stride]
+    gain, smooth, rss0, dof, best, normals = _scan(xy, z, centres, radius)
+    tested = np.isfinite(rss0) & (dof > 0)
+    s2 = float(np.median(rss0[tested] / dof[tested])) if tested.any() else float("nan")
+    empty = np.zeros((0, 2))
+    if not np.isfinite(s2) or s2 <= 0:
+        return BreaklineSearch(
+            [], [], [], [], [], radius, float("nan"), int(tested.sum()), 0, 0, empty
+        )
+    F = gain / s2
+    sharp = (gain - smooth) / s2  # what a step explains that no ramp does
+    strong = (
+        tested & (F >= F_MIN) & (sharp >= F_SHARP) & (np.abs(best[:, 0]) >= H_MIN * np.sqrt(s2))
+    )
+    idx = np.flatnonzero(strong)
+    if idx.size == 0:
+        return BreaklineSearch(
+            [], [], [], [], [], radius, float(np.sqrt(s2)), int(tested.sum()), 0, 0, empty
+        )
+    pts, step = best[idx, 1:3], best[idx, 0]
+    normal = normals[best[idx, 3].astype(int)] * np.sign(step)[:, None]  # towards the high side
+    kept = _suppress(pts, F[idx], radius)
+    pts, step, normal, strength = pts[kept], np.abs(step[kept]), normal[kept], F[idx][kept]
+    reach = max(4.0 * radius, 2.5 * largest_gap(xy), REACH_EXTENT * float(np.ptp(xy, axis=0).max()))
+    n_sets, label = _links(pts, normal, reach)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    found = []
+    for k in range(n_sets):
+        members = np.flatnonzero(label == k)
+        if members.size < MIN_POINTS:
+            continue
+        line = _polyline(pts[members], normal[members], lo, hi, reach, radius)
+        found.append(
+            (float(strength[members].sum()), line, float(np.median(step[members])), members.size)
+        )
+    found.sort(key=lambda t: -t[0])
+    linked = sum(f[3] for f in found)
+    confirmed, dropped = [], []
+    for _, line, _, k in found:
+        step, sd, why = _confirm(line, xy, z, np.sqrt(s2))
+        if why:
+            dropped.append(why)
+        else:
+            confirmed.append((line, step, sd, k))
+    return BreaklineSearch(
+        lines=[f[0] for f in confirmed],
+        steps_m=[f[1] for f in confirmed],
+        steps_sd_m=[f[2] for f in confirmed],
+        points=[f[3] for f in confirmed],
+        dropped=dropped,
+        radius_m=radius,
+        residual_sd_m=float(np.sqrt(s2)),
+        n_centres=int(tested.sum()),
+        n_edge_points=int(len(pts)),
+        n_unlinked=int(len(pts) - linked),
+        edge_points=pts,
+    )
