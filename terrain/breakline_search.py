@@ -21,10 +21,10 @@ strongest response kept where responses crowd, then the edge points linked into 
    ``radius / 2`` of a stronger one (non-maximum suppression).
 3. **Lines.** Edge points are linked when they lie within the link distance (``4 radius``,
    or 2.5 x the survey's widest gap: steps are seen on the tracks and not between them),
-   both directions agree with the segment between them within ``LINK_ANGLE_DEG`` and the
-   step rises to the same side. Each linked set of at least ``MIN_POINTS`` points is ordered
-   along its principal axis; an end within a link distance of the samples' bounding box is
-   carried past it (the step runs on across the survey), any other end stops half a radius
+   both directions agree with the segment between them within ``LINK_ANGLE_DEG``, the
+   step rises to the same side and the two steps' heights are within ``LINK_STEP_RATIO``. Each linked set of at least ``MIN_POINTS`` points is ordered
+   along its principal axis (a point off the others' line left out); an end within 1.5
+   radii (or 2.5 x the widest gap) of the samples' bounding box is carried past it (the step runs on across the survey), any other end stops half a radius
    past its last point (an open end: :class:`terrain.BreaklineMean` tapers the step there).
 
 Nothing here fits a GP: a line found is a proposal. The map takes it by the GP's evidence
@@ -74,10 +74,13 @@ F_SHARP = 9.0
 #: A step at least this many times the quadratic's residual sd.
 H_MIN = 4.0
 #: Directions agree within this many degrees to link two edge points.
-LINK_ANGLE_DEG = 30.0
+LINK_ANGLE_DEG = 40.0
 #: Edge points this share of the survey's extent apart may be linked (a step seen on two
 #: tracks and not in the gap between them).
 REACH_EXTENT = 0.3
+#: Linked edge points' steps differ by at most this factor (a step's height changes slowly
+#: along its line; a bend of the ground beside it reads as a smaller one).
+LINK_STEP_RATIO = 2.5
 #: Edge points in a line, at least.
 MIN_POINTS = 3
 #: A line's step (local least squares) at least this many of its sds.
@@ -239,7 +242,9 @@ def _suppress(points: np.ndarray, strength: np.ndarray, spacing: float) -> np.nd
     return np.asarray(kept, dtype=int)
 
 
-def _links(pts: np.ndarray, normal: np.ndarray, reach: float) -> tuple[int, np.ndarray]:
+def _links(
+    pts: np.ndarray, normal: np.ndarray, step: np.ndarray, reach: float
+) -> tuple[int, np.ndarray]:
     """Connected sets of edge points linked along their lines (module notes, step 3)."""
     cos_max = np.cos(np.radians(LINK_ANGLE_DEG))
     pairs = cKDTree(pts).query_pairs(reach, output_type="ndarray")
@@ -251,7 +256,8 @@ def _links(pts: np.ndarray, normal: np.ndarray, reach: float) -> tuple[int, np.n
         along_a = np.abs(v[:, 1] * normal[a, 0] - v[:, 0] * normal[a, 1])
         along_b = np.abs(v[:, 1] * normal[b, 0] - v[:, 0] * normal[b, 1])
         same = (normal[a] * normal[b]).sum(axis=1) >= cos_max
-        keep = (along_a >= cos_max) & (along_b >= cos_max) & same
+        alike = np.maximum(step[a], step[b]) <= LINK_STEP_RATIO * np.minimum(step[a], step[b])
+        keep = (along_a >= cos_max) & (along_b >= cos_max) & same & alike
         pairs = pairs[keep]
     graph = coo_matrix(
         (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])) if len(pairs) else ([], ([], [])),
@@ -260,12 +266,41 @@ def _links(pts: np.ndarray, normal: np.ndarray, reach: float) -> tuple[int, np.n
     return connected_components(graph, directed=False)
 
 
-def _polyline(pts, normal, lo, hi, reach, radius) -> np.ndarray:
+def _unspiked(line: np.ndarray, tolerance: float) -> np.ndarray:
+    """The ordered points less spikes: while an inner point lies farther than ``tolerance``
+    (m) from the segment joining its neighbours, or an end from the line through its two
+    neighbours, the farthest is left out (an edge point of a bend beside the line that the
+    links took along)."""
+    import shapely
+
+    while len(line) > MIN_POINTS:
+        seg = shapely.linestrings(np.stack([line[:-2], line[2:]], axis=1))
+        off = np.r_[  # an end may stray twice as far: it runs on a bending line's tangent
+            0.5 * _off_line(line[0], line[1], line[2]),
+            shapely.distance(seg, shapely.points(line[1:-1])),
+            0.5 * _off_line(line[-1], line[-2], line[-3]),
+        ]
+        k = int(np.argmax(off))
+        if off[k] <= tolerance:
+            break
+        line = np.delete(line, k, axis=0)
+    return line
+
+
+def _off_line(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Distance (m) from ``p`` to the straight line through ``a`` and ``b``: how far an end
+    point strays from where its neighbours' line runs on."""
+    u = (a - b) / max(float(np.linalg.norm(a - b)), 1e-9)
+    d = p - a
+    return abs(float(d[0] * u[1] - d[1] * u[0]))
+
+
+def _polyline(pts, lo, hi, reach, radius) -> np.ndarray:
     """Edge points ordered along their principal axis; ends carried past the samples' box
     when within ``reach`` of it, else half a radius past the last point."""
     centre = pts.mean(axis=0)
     axis = np.linalg.svd(pts - centre, full_matrices=False)[2][0]
-    line = pts[np.argsort((pts - centre) @ axis, kind="stable")]
+    line = _unspiked(pts[np.argsort((pts - centre) @ axis, kind="stable")], 0.5 * radius)
     ends = []
     for end, inner in ((line[0], line[1]), (line[-1], line[-2])):
         out = (end - inner) / max(float(np.linalg.norm(end - inner)), 1e-9)
@@ -363,18 +398,18 @@ def find_breaklines(samples: ElevationSamples, radius: float | None = None) -> B
     normal = normals[best[idx, 3].astype(int)] * np.sign(step)[:, None]  # towards the high side
     kept = _suppress(pts, F[idx], radius)
     pts, step, normal, strength = pts[kept], np.abs(step[kept]), normal[kept], F[idx][kept]
-    reach = max(4.0 * radius, 2.5 * largest_gap(xy), REACH_EXTENT * float(np.ptp(xy, axis=0).max()))
-    n_sets, label = _links(pts, normal, reach)
+    gap = largest_gap(xy)
+    reach = max(4.0 * radius, 2.5 * gap, REACH_EXTENT * float(np.ptp(xy, axis=0).max()))
+    edge = max(1.5 * radius, 2.5 * gap)  # an end this near the box's edge runs on past it
+    n_sets, label = _links(pts, normal, step, reach)
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     found = []
     for k in range(n_sets):
         members = np.flatnonzero(label == k)
         if members.size < MIN_POINTS:
             continue
-        line = _polyline(pts[members], normal[members], lo, hi, reach, radius)
-        found.append(
-            (float(strength[members].sum()), line, float(np.median(step[members])), members.size)
-        )
+        line = _polyline(pts[members], lo, hi, edge, radius)
+        found.append((float(strength[members].sum()), line, None, len(line) - 2))
     found.sort(key=lambda t: -t[0])
     linked = sum(f[3] for f in found)
     confirmed, dropped = [], []
