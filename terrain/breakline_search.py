@@ -6,30 +6,39 @@ the way edge detectors find steps in images (Canny 1986: a local test for a step
 strongest response kept where responses crowd, then the edge points linked into lines):
 
 1. **A local test for a step.** Around each centre (the samples, thinned to at most
-   ``MAX_CENTRES``), the samples within ``radius`` m are fitted by a quadratic surface
-   (6 columns), then by the quadratic plus a step ``h * [n . (x - p) > 0]`` across a
-   straight line through ``p`` with normal ``n``, for ``N_DIRECTIONS`` directions and
-   ``N_OFFSETS`` offsets of the line across the disc. The step's reduction of the residual
-   sum of squares is ``(s^T r0)^2 / (s^T s - b^T A^-1 b)`` (partial regression:
-   ``r0`` the quadratic's residuals, ``A = X^T X``, ``b = X^T s``), so all lines of a centre
-   cost one small solve. The best line's ``F = reduction / s2`` (``s2``: the median over
-   centres of the quadratic's residual variance: noise and the ground's roughness at this
-   radius) and its step ``h`` (m).
-2. **Edge points.** A line with ``F >= F_MIN``, ``|h| >= H_MIN * sqrt(s2)`` and at least
-   ``MIN_SIDE`` samples on either side gives an edge point (the point of the line nearest
-   the centre, its direction, its step). Points are kept strongest first, none within
-   ``radius / 2`` of a stronger one (non-maximum suppression).
+   ``MAX_CENTRES``), the samples within ``radius`` m are fitted by a cubic surface (10
+   columns), then by the cubic plus a step ``h * [n . (x - p) > 0]`` across a straight line
+   through ``p`` with normal ``n``, for ``N_DIRECTIONS`` directions and ``N_OFFSETS``
+   offsets of the line across the disc. The step's reduction of the residual sum of squares
+   is ``(s^T r0)^2 / (s^T s - b^T A^-1 b)`` (partial regression: ``r0`` the cubic's
+   residuals, ``A = X^T X``, ``b = X^T s``), so all lines of a centre cost one small solve.
+   The same lines are tried as a slightly soft step (logistic of ``SOFT`` radius) and as a
+   ramp (``RAMP`` radius: ground that bends smoothly); the best line's offset is then
+   refined to the gaps between the samples across it. ``F = reduction / s2``, with ``s2``
+   the median over centres of the cubic's residual variance (noise and the ground's
+   roughness at this radius).
+2. **Edge points.** A line with ``F >= F_MIN``, a step that explains ``F_SHARP`` more than
+   the best ramp, ``|h| >= H_MIN * sqrt(s2)``, at least ``MIN_SIDE`` samples on either side
+   and not at the disc's outermost offsets gives an edge point (the point of the line
+   nearest the centre, its direction, its step). Points are kept strongest first, none
+   within a radius of a stronger one (non-maximum suppression).
 3. **Lines.** Edge points are linked when they lie within the link distance (``4 radius``,
-   or 2.5 x the survey's widest gap: steps are seen on the tracks and not between them),
-   both directions agree with the segment between them within ``LINK_ANGLE_DEG``, the
-   step rises to the same side and the two steps' heights are within ``LINK_STEP_RATIO``. Each linked set of at least ``MIN_POINTS`` points is ordered
-   along its principal axis (a point off the others' line left out); an end within 1.5
-   radii (or 2.5 x the widest gap) of the samples' bounding box is carried past it (the step runs on across the survey), any other end stops half a radius
-   past its last point (an open end: :class:`terrain.BreaklineMean` tapers the step there).
+   2.5 x the survey's widest gap or ``REACH_EXTENT`` of its extent: steps are seen on the
+   tracks and not between them), both directions agree with the segment between them within
+   ``LINK_ANGLE_DEG``, the step rises to the same side and the two steps' heights are within
+   ``LINK_STEP_RATIO``. Each linked set of at least ``MIN_POINTS`` points is ordered along
+   its principal axis (a point off the others' line left out); an end within 1.5 radii (or
+   2.5 x the widest gap) of the samples' bounding box is carried past it (the step runs on
+   across the survey), any other end stops half a radius past its last point (an open end:
+   :class:`terrain.BreaklineMean` tapers the step there).
+4. **Each line confirmed** by :meth:`terrain.BreaklineMean.fit`'s local least squares (planes
+   on stretches beside it, its width and taper chosen): kept when its step is at least
+   ``STEP_Z`` of its sds and ``H_MIN`` residual sds; the others are listed with the reason.
 
-Nothing here fits a GP: a line found is a proposal. The map takes it by the GP's evidence
-(:func:`terrain.breakline_choice.map_with_found_breaklines`): each step's height estimated
-with its 1-sigma, and lines whose step is not told from zero dropped.
+Nothing here fits a GP: a line found is a proposal, which ``TerrainGP(mean=BreaklineMean(
+found.lines))`` fits like a drawn one (each step's height by GLS with its 1-sigma);
+``glacimap reconstruct --breaklines auto`` does just that and says what was found and why
+any line was dropped (docs/terrain.md "Breaklines found in the samples").
 """
 
 from __future__ import annotations

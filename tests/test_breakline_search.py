@@ -134,3 +134,21 @@ def test_cli_finds_the_step_fits_it_and_says_so(ground, tmp_path):
             assert abs(height) == pytest.approx(3.0, abs=0.6)  # the GP's GLS step
         else:
             assert "0 line(s)" in res.output and "BreaklineMean" not in attrs["mean_function"]
+
+
+def test_process_searches_the_selected_samples_and_records_what_it_found(tmp_path):
+    # The example field folder (the default site) has no scarp: the search, run on the
+    # landmarks the selection kept, finds no line and says so; the map is the plain one.
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["process", str(example), "--breaklines", "auto",
+                                   "--out", str(out)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "breaklines: breakline search" in res.output and "0 line(s)" in res.output
+    cert = json.loads((out / "certificate.json").read_text())
+    assert "0 line(s)" in cert["inputs"]["breakline_search"][0]
+    attrs = xr.open_dataset(out / "product.nc").attrs
+    assert "BreaklineMean" not in attrs["mean_function"]
+    assert "breaklines" not in {r["role"] for r in json.loads(attrs["inputs"])}

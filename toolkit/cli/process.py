@@ -114,8 +114,9 @@ def process_command(
 
         from toolkit.breaklines_io import step_notes
 
-        for note in step_notes(res.objects["reconstruction"].gp.mean_):
-            console.print(f"breaklines: {escape(note)}")
+        found = (cert.get("inputs") or {}).get("breakline_search") or []
+        for note in [*found, *step_notes(res.objects["reconstruction"].gp.mean_)]:
+            console.print(f"breaklines: {escape(note)}")  # what was found, then each step
     if res.removed:
         console.print(
             f"removed {len(res.removed)} product(s) of an earlier run into {res.out} that this "
