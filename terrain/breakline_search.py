@@ -304,22 +304,31 @@ def _off_line(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     return abs(float(d[0] * u[1] - d[1] * u[0]))
 
 
-def _polyline(pts, lo, hi, reach, radius) -> np.ndarray:
-    """Edge points ordered along their principal axis; ends carried past the samples' box
-    when within ``reach`` of it, else half a radius past the last point."""
+def _polyline(pts, lo, hi, reach, radius) -> tuple[np.ndarray, int]:
+    """Edge points ordered along their principal axis, joined by a cubic spline of arc
+    length (vertices a quarter radius apart: a sinuous step between tracks is a curve, not
+    the chords between them); ends carried on along its tangent past the samples' box when
+    within ``reach`` of it, else half a radius past the last point. Returns the vertices and
+    the number of edge points behind them."""
+    from scipy.interpolate import make_interp_spline
+
     centre = pts.mean(axis=0)
     axis = np.linalg.svd(pts - centre, full_matrices=False)[2][0]
     line = _unspiked(pts[np.argsort((pts - centre) @ axis, kind="stable")], 0.5 * radius)
+    t = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))]
+    spline = make_interp_spline(t, line, k=min(3, len(line) - 1))
+    curve = spline(np.linspace(0.0, t[-1], max(len(line), int(t[-1] / (0.25 * radius)) + 1)))
     ends = []
-    for end, inner in ((line[0], line[1]), (line[-1], line[-2])):
-        out = (end - inner) / max(float(np.linalg.norm(end - inner)), 1e-9)
+    for end, at in ((curve[0], 0.0), (curve[-1], t[-1])):
+        out = spline.derivative()(at) * (-1.0 if at == 0.0 else 1.0)
+        out = out / max(float(np.linalg.norm(out)), 1e-9)
         # distance along ``out`` to the box's edge
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(out > 0, (hi - end) / out, np.where(out < 0, (lo - end) / out, np.inf))
-        to_edge = float(np.min(t))
+            to = np.where(out > 0, (hi - end) / out, np.where(out < 0, (lo - end) / out, np.inf))
+        to_edge = float(np.min(to))
         step = to_edge + radius if to_edge <= reach else 0.5 * radius
         ends.append(end + step * out)
-    return np.vstack([ends[0], line, ends[1]])
+    return np.vstack([ends[0], curve, ends[1]]), len(line)
 
 
 def _confirm(line: np.ndarray, xy: np.ndarray, z: np.ndarray, sd: float):
@@ -417,8 +426,8 @@ def find_breaklines(samples: ElevationSamples, radius: float | None = None) -> B
         members = np.flatnonzero(label == k)
         if members.size < MIN_POINTS:
             continue
-        line = _polyline(pts[members], lo, hi, edge, radius)
-        found.append((float(strength[members].sum()), line, None, len(line) - 2))
+        line, used = _polyline(pts[members], lo, hi, edge, radius)
+        found.append((float(strength[members].sum()), line, None, used))
     found.sort(key=lambda t: -t[0])
     linked = sum(f[3] for f in found)
     confirmed, dropped = [], []
