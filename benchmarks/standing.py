@@ -58,6 +58,7 @@ MEANS = {
     "glacimap_pycno": "area-means",
     "glacimap_breakline": "breakline",
     "glacimap_breakline_across": "breakline-across",
+    "glacimap_breakline_found": "breakline-found",
 }
 #: Which verdict keys make each target (all must pass).
 TARGETS = {
