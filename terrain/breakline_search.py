@@ -29,8 +29,9 @@ strongest response kept where responses crowd, then the edge points linked into 
    ``LINK_STEP_RATIO``. Each linked set of at least ``MIN_POINTS`` points is ordered along
    its principal axis (a point off the others' line left out); an end within 1.5 radii (or
    2.5 x the widest gap) of the samples' bounding box is carried past it (the step runs on
-   across the survey), any other end stops half a radius past its last point (an open end:
-   :class:`terrain.BreaklineMean` tapers the step there).
+   across the survey), any other end runs on ``OPEN_RUN_ON`` of the link distance past its
+   last point (an open end: :class:`terrain.BreaklineMean` tapers the step there, the
+   taper chosen at fit).
 4. **Each line confirmed** by :meth:`terrain.BreaklineMean.fit`'s local least squares (planes
    on stretches beside it, its width and taper chosen): kept when its step is at least
    ``STEP_Z`` of its sds and ``H_MIN`` residual sds; the others are listed with the reason.
@@ -90,6 +91,10 @@ REACH_EXTENT = 0.3
 #: Linked edge points' steps differ by at most this factor (a step's height changes slowly
 #: along its line; a bend of the ground beside it reads as a smaller one).
 LINK_STEP_RATIO = 2.5
+#: An open end runs on past its last edge point this share of the link distance: a step
+#: dies out between the last track that sees it and the next one, and the taper chosen at
+#: fit fades it (half a radius stopped bei's fading scarp 50 m short at 50,000 samples).
+OPEN_RUN_ON = 0.5
 #: Edge points in a line, at least.
 MIN_POINTS = 3
 #: A line's step (local least squares) at least this many of its sds.
@@ -308,12 +313,12 @@ def _off_line(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     return abs(float(d[0] * u[1] - d[1] * u[0]))
 
 
-def _polyline(pts, lo, hi, reach, radius) -> tuple[np.ndarray, int]:
+def _polyline(pts, lo, hi, reach, radius, link) -> tuple[np.ndarray, int]:
     """Edge points ordered along their principal axis, joined by a cubic spline of arc
     length (vertices a quarter radius apart: a sinuous step between tracks is a curve, not
     the chords between them); ends carried on along its tangent past the samples' box when
-    within ``reach`` of it, else half a radius past the last point. Returns the vertices and
-    the number of edge points behind them."""
+    within ``reach`` of it, else ``OPEN_RUN_ON`` x ``link`` past the last point. Returns the
+    vertices and the number of edge points behind them."""
     from scipy.interpolate import make_interp_spline
 
     centre = pts.mean(axis=0)
@@ -330,7 +335,7 @@ def _polyline(pts, lo, hi, reach, radius) -> tuple[np.ndarray, int]:
         with np.errstate(divide="ignore", invalid="ignore"):
             to = np.where(out > 0, (hi - end) / out, np.where(out < 0, (lo - end) / out, np.inf))
         to_edge = float(np.min(to))
-        step = to_edge + radius if to_edge <= reach else 0.5 * radius
+        step = to_edge + radius if to_edge <= reach else OPEN_RUN_ON * link
         ends.append(end + step * out)
     return np.vstack([ends[0], curve, ends[1]]), len(line)
 
@@ -430,7 +435,7 @@ def find_breaklines(samples: ElevationSamples, radius: float | None = None) -> B
         members = np.flatnonzero(label == k)
         if members.size < MIN_POINTS:
             continue
-        line, used = _polyline(pts[members], lo, hi, edge, radius)
+        line, used = _polyline(pts[members], lo, hi, edge, radius, reach)
         found.append((float(strength[members].sum()), line, None, used))
     found.sort(key=lambda t: -t[0])
     linked = sum(f[3] for f in found)

@@ -101,8 +101,12 @@ def test_a_step_that_dies_out_is_found_with_an_open_end(ground):
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     assert line[0, 0] < lo[0]  # the west end runs on past the survey
     assert lo[0] < line[-1, 0] < hi[0]  # the east end stops inside it: an open end
-    assert line[-1, 0] < X0 + 450.0  # not past where the step has died out (x = 400 m)
-    assert np.median(_offsets(line, xy)) < 3.0 and np.max(_offsets(line, xy)) < 6.5
+    # it runs on past its last edge point (x = 318 m) by half the link distance (180 m
+    # here: 90 m; the taper fitted fades the step there): measured x = 415 m for a step
+    # that dies out at 400 m; the spline's vertices: median 2.7, max 5.3 m off
+    assert X0 + 300.0 < line[-1, 0] < X0 + 400.0 + 0.5 * 180.0 + 20.0
+    spline = found.lines[0][1:-1]  # the run-on ends go straight, the step curves on
+    assert np.median(_offsets(spline, xy)) < 3.0 and np.max(_offsets(spline, xy)) < 6.5
 
 
 def test_a_line_whose_step_is_not_told_from_zero_is_dropped_with_its_reason(ground):
