@@ -259,11 +259,13 @@ def process(
         front-end and use those tracks (default); False: the folder's tracks table.
     on_frames : callable, optional
         ``on_frames(k, K)`` while the front-end tracks the frames (ingest).
-    breaklines : path or sequence of (k, 2) arrays, optional
+    breaklines : path, sequence of (k, 2) arrays or "auto", optional
         Lines the ground steps across (an ice cliff, a moraine's edge; one that stops inside
         the survey has its step die out towards that end): a vector file (reprojected to the
         map's CRS from the CRS it declares; WKT in the map's CRS) or vertex arrays in the
-        map's CRS (``terrain.BreaklineMean`` on the prior mean; heights fitted).
+        map's CRS (``terrain.BreaklineMean`` on the prior mean; heights fitted); ``"auto"``:
+        found in the selected landmarks (``terrain.find_breaklines``; what was found and
+        dropped in the certificate's ``inputs.breakline_search``).
     breakline_width : float or "auto"
         Scale of each step's logistic, m; ``"auto"``: each line's own, chosen by the fit.
     breakline_taper : float or "auto"
