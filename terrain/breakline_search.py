@@ -10,8 +10,8 @@ strongest response kept where responses crowd, then the edge points linked into 
    columns), then by the cubic plus a step ``h * [n . (x - p) > 0]`` across a straight line
    through ``p`` with normal ``n``, for ``N_DIRECTIONS`` directions and ``N_OFFSETS``
    offsets of the line across the disc. The step's reduction of the residual sum of squares
-   is ``(s^T r0)^2 / (s^T s - b^T A^-1 b)`` (partial regression: ``r0`` the cubic's
-   residuals, ``A = X^T X``, ``b = X^T s``), so all lines of a centre cost one small solve.
+   is ``(s^T r0)^2 / (s^T s - |Q^T s|^2)`` (partial regression: ``r0`` the cubic's
+   residuals, ``Q`` its orthonormal basis), so all lines of a centre cost one QR.
    The same lines are tried as a slightly soft step (logistic of ``SOFT`` radius) and as a
    ramp (``RAMP`` radius: ground that bends smoothly); the best line's offset is then
    refined to the gaps between the samples across it. ``F = reduction / s2``, with ``s2``
@@ -52,7 +52,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from scipy.special import expit
 
-from .errors import bad_input, positive_number
+from .breakline import BreaklineMean
+from .errors import InputError, bad_input, positive_number
 from .gaps import largest_gap
 from .samples import ElevationSamples
 
@@ -74,14 +75,14 @@ MIN_SIDE = 8
 DISC_SAMPLES = 40
 #: Centres tested, at most (the samples thinned evenly).
 MAX_CENTRES = 6000
-#: A step's reduction of the residual sum of squares, in units of the quadratic's residual
+#: A step's reduction of the residual sum of squares, in units of the cubic's residual
 #: variance (a chi-square with one degree of freedom under no step: 36 is 6 sigma, beyond
 #: the scan's ~10^5 lines tried).
 F_MIN = 36.0
 #: What a step explains beyond the best ramp, in the same units (3 sigma: the ramps are
 #: the same lines, so this is a test of shape, not of place).
 F_SHARP = 9.0
-#: A step at least this many times the quadratic's residual sd.
+#: A step at least this many times the cubic's residual sd.
 H_MIN = 4.0
 #: Directions agree within this many degrees to link two edge points.
 LINK_ANGLE_DEG = 40.0
@@ -123,7 +124,7 @@ class BreaklineSearch:
     radius_m : float
         The disc radius of the local test, m.
     residual_sd_m : float
-        ``sqrt(s2)``: the quadratic's median residual sd at that radius, m.
+        ``sqrt(s2)``: the cubic's median residual sd at that radius, m.
     n_centres, n_edge_points, n_unlinked : int
         Centres tested, edge points kept after suppression, and edge points in no line
         (counted, not silently dropped: a step too short to be a line, or a lone bump).
@@ -178,19 +179,22 @@ def _surface(u: np.ndarray) -> np.ndarray:
     return np.column_stack([x**0, x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3])
 
 
-def _reductions(X, S, r0, usable):
-    """Each column's reduction of the residual sum of squares beside ``X`` (partial
-    regression), with its numerator ``s^T r0`` and denominator ``s^T s - b^T A^-1 b``."""
-    B = X.T @ S
-    AinvB = np.linalg.lstsq(X.T @ X, B, rcond=None)[0]
-    denom = np.einsum("ij,ij->j", S, S) - np.einsum("ij,ij->j", B, AinvB)
+def _reductions(Q: np.ndarray, S: np.ndarray, r0: np.ndarray, usable: np.ndarray):
+    """Each column of ``S`` (m, c): its reduction of the residual sum of squares beside the
+    surface whose orthonormal basis is ``Q`` (m, 10) (partial regression), with its
+    numerator ``s^T r0`` and denominator ``s^T s - |Q^T s|^2`` (= ``s^T s - b^T A^-1 b``)."""
+    QS = Q.T @ S
+    denom = np.einsum("ij,ij->j", S, S) - np.einsum("ij,ij->j", QS, QS)
     num = S.T @ r0
     red = np.where(usable & (denom > 1e-9), num**2 / np.maximum(denom, 1e-12), 0.0)
     return red, num, denom
 
 
 def _scan(xy, z, centres, radius):
-    """The best step line of each centre: (F numerator, step, point on line, normal, ok)."""
+    """Each centre's best step line: its reduction of the residual sum of squares, the best
+    ramp's, the cubic's residual sum of squares and degrees of freedom (nan / 0: too few
+    samples), ``(step, x, y, direction index)`` of the line's point nearest the centre, and
+    the directions' normals (d, 2)."""
     tree = cKDTree(xy)
     angles = np.pi * np.arange(N_DIRECTIONS) / N_DIRECTIONS
     normals = np.column_stack([np.cos(angles), np.sin(angles)])  # (d, 2)
@@ -205,23 +209,21 @@ def _scan(xy, z, centres, radius):
         if len(idx) < 2 * MIN_SIDE:
             continue
         u = (xy[idx] - centres[i]) / radius  # local, unit disc
-        X = _surface(u)
-        zz = z[idx]
-        coef, *_ = np.linalg.lstsq(X, zz, rcond=None)
-        r0 = zz - X @ coef
-        rss0[i], dof[i] = float(r0 @ r0), len(idx) - X.shape[1]
+        Q = np.linalg.qr(_surface(u))[0]  # the cubic's basis, once for every line below
+        r0 = z[idx] - Q @ (Q.T @ z[idx])
+        rss0[i], dof[i] = float(r0 @ r0), len(idx) - Q.shape[1]
         proj = (u @ normals.T)[:, :, None] * radius - offsets  # (m, d, o), m from the line
         S = (proj > 0).reshape(len(idx), -1).astype(float)  # step columns (m, d * o)
         n_up = S.sum(axis=0)
         enough = (n_up >= MIN_SIDE) & (len(idx) - n_up >= MIN_SIDE)
         if not enough.any():
             continue
-        red, num, denom = _reductions(X, S, r0, enough)
+        red, num, denom = _reductions(Q, S, r0, enough)
         # a step a little wider than sharp, and the same lines as ramps: ground that bends
         # smoothly is fitted as well by a ramp; a step is not
         flat = proj.reshape(len(idx), -1)
-        soft = _reductions(X, expit(flat / (SOFT * radius)), r0, enough)
-        smooth[i] = _reductions(X, expit(flat / (RAMP * radius)), r0, enough)[0].max()
+        soft = _reductions(Q, expit(flat / (SOFT * radius)), r0, enough)
+        smooth[i] = _reductions(Q, expit(flat / (RAMP * radius)), r0, enough)[0].max()
         scale = SOFT * radius if soft[0].max() > red.max() else 0.0
         if scale:
             red, num, denom = soft
@@ -239,7 +241,7 @@ def _scan(xy, z, centres, radius):
         cols = expit(cols / scale) if scale else (cols > 0).astype(float)
         n_up = (across[:, None] > tries).sum(axis=0)
         ok = (n_up >= MIN_SIDE) & (len(idx) - n_up >= MIN_SIDE)
-        fine, fnum, fden = _reductions(X, cols, r0, ok)
+        fine, fnum, fden = _reductions(Q, cols, r0, ok)
         k = int(np.argmax(fine))
         gain[i] = fine[k]
         best[i] = (fnum[k] / fden[k], *(centres[i] + tries[k] * normals[d]), d)
@@ -345,9 +347,6 @@ def _confirm(line: np.ndarray, xy: np.ndarray, z: np.ndarray, sd: float):
     stretches beside it, its width and taper chosen): ``(step, its sd, "")``, or a reason
     to drop it (the step not told from zero, smaller than ``H_MIN`` residual sds, or a line
     the mean refuses)."""
-    from .breakline import BreaklineMean  # here: the mean's module is the heavier one
-    from .errors import InputError
-
     try:
         mean = BreaklineMean([line]).fit(xy, z)
     except InputError as err:
@@ -436,11 +435,11 @@ def find_breaklines(samples: ElevationSamples, radius: float | None = None) -> B
         if members.size < MIN_POINTS:
             continue
         line, used = _polyline(pts[members], lo, hi, edge, radius, reach)
-        found.append((float(strength[members].sum()), line, None, used))
+        found.append((float(strength[members].sum()), line, used))
     found.sort(key=lambda t: -t[0])
-    linked = sum(f[3] for f in found)
+    linked = sum(f[2] for f in found)
     confirmed, dropped = [], []
-    for _, line, _, k in found:
+    for _, line, k in found:
         step, sd, why = _confirm(line, xy, z, np.sqrt(s2))
         if why:
             dropped.append(why)
