@@ -38,6 +38,9 @@ time and peak RSS are its own; one at a time: 2 cores):
                   ``terrain.find_breaklines`` finds in the samples (none: the plain map);
                   ``info.breakline_search`` says what it found, and how far the found lines'
                   vertices inside the survey lie from the feature's own line.
+``glacimap_breakline_dem`` the feature's line on the 8 x 8 prior fitted as ``a + b * DEM``
+                  (``RasterMean(coarse_dem(truth), offset="fit")``: as ``glacimap run`` and
+                  ``--prior`` read a satellite DEM); the step counted once (terrain/dem_reading.py).
 ``rbf_tps64``     scipy ``RBFInterpolator``, thin-plate spline, 64 neighbours, smoothing 0.
 ``verde_knn``     ``verde.KNeighbors()`` defaults.
 ``verde_spline``  ``verde.BlockReduce(np.median, spacing=4)`` + ``verde.Spline()``; guarded:
@@ -86,6 +89,7 @@ METHODS = (
     "glacimap_breakline",
     "glacimap_breakline_across",
     "glacimap_breakline_found",
+    "glacimap_breakline_dem",
     "rbf_tps64",
     "verde_knn",
     "verde_spline",
@@ -98,6 +102,7 @@ GLACIMAP = (
     "glacimap_breakline",
     "glacimap_breakline_across",
     "glacimap_breakline_found",
+    "glacimap_breakline_dem",
 )
 WITH_STD = (*GLACIMAP, "pykrige_ok")
 SEED = 0
@@ -349,11 +354,11 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
     elif method in GLACIMAP:
         import real_dems
 
-        from terrain import BreaklineMean, PycnophylacticMean, TerrainGP, coarse_dem
+        from terrain import BreaklineMean, PycnophylacticMean, RasterMean, TerrainGP, coarse_dem
 
         feature = site.get("feature", "none")
         line = real_dems.feature_line(truth, feature)
-        if method == "glacimap_breakline" and line is None:
+        if method in ("glacimap_breakline", "glacimap_breakline_dem") and line is None:
             why = "no breakline: --feature scarp, scarp-along or scarp-end"
             return {"skipped": why, "method_s": None}
         if method == "glacimap_breakline_across":  # a scarp-end's line run on across
@@ -370,6 +375,10 @@ def case(site: dict, n: int, method: str, spline_pred_s: float | None = None) ->
             "glacimap_breakline": lambda: BreaklineMean([line]),  # width="auto"
             "glacimap_breakline_across": lambda: BreaklineMean([line]),
             "glacimap_breakline_found": lambda: BreaklineMean(found) if found else "constant",
+            # the line on the 8 x 8 prior read as the pipeline reads a satellite DEM: a + b * DEM
+            "glacimap_breakline_dem": lambda: BreaklineMean(
+                [line], base=RasterMean(coarse_dem(truth), offset="fit")
+            ),
         }
         kw = {"mean": means[method]()}
         gp = TerrainGP(seed=0, **kw)

@@ -59,6 +59,7 @@ MEANS = {
     "glacimap_breakline": "breakline",
     "glacimap_breakline_across": "breakline-across",
     "glacimap_breakline_found": "breakline-found",
+    "glacimap_breakline_dem": "breakline-8x8",
 }
 #: Which verdict keys make each target (all must pass).
 TARGETS = {

@@ -47,6 +47,7 @@ from .breakline_geometry import (
 )
 from .breakline_local import local_fit, near_samples
 from .breakline_settings import per_line, read_ends, setting_repr
+from .dem_reading import prior_reading
 from .errors import NotFittedError, bad_input
 from .linear_mean import (
     check_coefficients,
@@ -326,9 +327,18 @@ class BreaklineMean:
     def basis(self, xy: np.ndarray) -> np.ndarray:
         """Design matrix ``[h_base(x), S_1(x), ..., hinges]``, shape (n, n_coef): the
         base's columns, each line's step, then a hinge column for each line with an open
-        end (:meth:`_columns`)."""
+        end (:meth:`_columns`). On a coarse DEM prior each step's column is less what the
+        DEM already carries of it (``terrain.dem_reading``: the step counted once)."""
         S, F = self._steps_and_hinges(xy)
-        return np.column_stack([np.asarray(self.base.basis(xy), float), S, F])
+        base = np.asarray(self.base.basis(xy), float)  # binds a raster base first
+        bound = getattr(getattr(self.base, "_shared", None), "bound", None)
+        key = (tuple(self.widths_ or ()), tuple(self.tapers_ or ()), self._open(), id(bound))
+        readers = self.__dict__.setdefault("_reading_cache", {})  # shared by copies
+        if key not in readers:
+            readers[key] = prior_reading(self.base, lambda p: self._steps_and_hinges(p)[0])
+        if readers[key] is not None:
+            S = S - readers[key](xy)
+        return np.column_stack([base, S, F])
 
     def open_ends(self, xy: np.ndarray) -> tuple[tuple[bool, bool], ...]:
         """Per line, whether its first and last vertex lie inside the bounding box of
