@@ -6,6 +6,10 @@ MultiLineStrings, reprojected to the map's CRS from the CRS it declares, or a WK
 geometry per line, or a GEOMETRYCOLLECTION) in the map's CRS (:mod:`toolkit.vector_io`).
 A line that stops inside the survey has its step die out towards that end (its taper;
 terrain/breakline.py).
+
+The same lines come from a ``glacimap run`` / ``process`` scenario's ``[reconstruct]``
+``breaklines``, ``breakline_width`` and ``breakline_taper`` (:func:`scenario_breaklines`);
+errors then name those keys.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ __all__ = [
     "check_breakline_options",
     "is_search",
     "read_breaklines",
+    "scenario_breaklines",
+    "scenario_lines",
     "step_notes",
     "with_breaklines",
 ]
@@ -36,18 +42,19 @@ AUTO = "auto"
 
 
 def read_breaklines(
-    path: Path, crs: Any = None, notes: list[str] | None = None
+    path: Path, crs: Any = None, notes: list[str] | None = None, field: str = FIELD
 ) -> list[np.ndarray]:
     """The lines of ``path`` as vertex arrays, each of shape (k, 2), in file order, in
     ``crs`` when given (reprojected from the CRS the file declares:
     :func:`toolkit.vector_io.read_geometries`); ``notes``, when given, gains a sentence on
     how they were read (for the console).
 
-    Raises an ``InputError`` naming ``--breaklines`` when the file is missing or unreadable,
+    Raises an ``InputError`` naming ``field`` (``--breaklines``, or the scenario key
+    ``reconstruct.breaklines``) when the file is missing or unreadable,
     holds no line, holds another geometry (a polygon's outline is not a step), or holds
     longitude / latitude for a projected ``crs`` without declaring it.
     """
-    geoms, note = read_geometries(Path(path), FIELD, crs)
+    geoms, note = read_geometries(Path(path), field, crs)
     if "empty geometries" in note:  # counted, never silently dropped
         warnings.warn(note, stacklevel=2)
     lines: list[np.ndarray] = []
@@ -55,14 +62,14 @@ def read_breaklines(
         for part in getattr(g, "geoms", [g]):
             if part.geom_type != "LineString":
                 raise bad_input(
-                    FIELD,
+                    field,
                     f"a {part.geom_type} in {Path(path).name}",
                     "LineStrings (or MultiLineStrings) only",
                     "draw each breakline as a line along the step",
                 )
             lines.append(np.asarray(part.coords, dtype=float)[:, :2])
     if not lines:
-        raise bad_input(FIELD, Path(path).name, "at least one line", "or leave --breaklines out")
+        raise bad_input(field, Path(path).name, "at least one line", f"or leave {field} out")
     if notes is not None:
         notes.append(f"{len(lines)} line(s) from {Path(path).name}; {note.split(': ', 1)[1]}")
     return lines
@@ -115,8 +122,8 @@ def with_breaklines(
 def _metres_or_auto(value: Any, option: str, what: str, example: str) -> float | str:
     if isinstance(value, str) and value.strip().lower() == "auto":
         return "auto"
-    try:
-        metres = float(value)
+    try:  # TOML true / false is not a length
+        metres = float("nan") if isinstance(value, bool) else float(value)
     except (TypeError, ValueError):
         metres = float("nan")
     if not 0 < metres < float("inf"):
@@ -124,16 +131,49 @@ def _metres_or_auto(value: Any, option: str, what: str, example: str) -> float |
     return metres
 
 
-def breakline_width(value: Any) -> float | str:
+def breakline_width(value: Any, field: str = "--breakline-width") -> float | str:
     """``--breakline-width``: ``"auto"`` (each line's own, chosen by fit) or a positive
-    number of metres; anything else an ``InputError`` naming the option."""
-    return _metres_or_auto(value, "--breakline-width", "width", "e.g. auto or 1.5")
+    number of metres; anything else an ``InputError`` naming ``field``."""
+    return _metres_or_auto(value, field, "width", "e.g. auto or 1.5")
 
 
-def breakline_taper(value: Any) -> float | str:
+def breakline_taper(value: Any, field: str = "--breakline-taper") -> float | str:
     """``--breakline-taper``: ``"auto"`` or the positive length (m) a step dies out over
-    before an end inside the survey; anything else an ``InputError`` naming the option."""
-    return _metres_or_auto(value, "--breakline-taper", "length", "e.g. auto or 40")
+    before an end inside the survey; anything else an ``InputError`` naming ``field``."""
+    return _metres_or_auto(value, field, "length", "e.g. auto or 40")
+
+
+def scenario_breaklines(reconstruct: dict[str, Any], base: Path) -> dict[str, Any]:
+    """A scenario's ``[reconstruct]`` table with its breakline keys checked before any
+    work: ``breaklines`` ``""`` (none), ``"auto"`` (found in the selected landmarks) or a
+    vector file, a relative path resolved against ``base`` (the scenario file's folder) and
+    made absolute, the file read once; ``breakline_width`` / ``breakline_taper`` ``"auto"``
+    or positive metres. Errors name the key (``reconstruct.breaklines``...)."""
+    out = dict(reconstruct)
+    raw = str(out.get("breaklines", "")).strip()
+    if is_search(raw):
+        out["breaklines"] = AUTO
+    elif raw:
+        path = Path(raw).expanduser()
+        path = path if path.is_absolute() else (base / path)
+        read_breaklines(path, field="reconstruct.breaklines")
+        out["breaklines"] = str(path.resolve())
+    out["breakline_width"] = breakline_width(
+        out.get("breakline_width", "auto"), "reconstruct.breakline_width"
+    )
+    out["breakline_taper"] = breakline_taper(
+        out.get("breakline_taper", "auto"), "reconstruct.breakline_taper"
+    )
+    return out
+
+
+def scenario_lines(settings: dict[str, Any]) -> tuple[Any, float | str, float | str]:
+    """``(lines, width, taper)`` of loaded settings' ``[reconstruct]`` table, as
+    :func:`with_breaklines` takes them: lines None when ``breaklines`` is ``""`` (or absent:
+    settings from before 0.39.0)."""
+    rc = settings.get("reconstruct", {})
+    lines = str(rc.get("breaklines", "")).strip() or None
+    return lines, rc.get("breakline_width", "auto"), rc.get("breakline_taper", "auto")
 
 
 def check_breakline_options(

@@ -82,6 +82,14 @@ n_restarts = 1
 anisotropy = "none"            # ground smoother along one azimuth: "none"; "auto" (chosen by
                                # evidence, BIC); [azimuth_deg, ratio]: a known grain, e.g. a
                                # glacier's flow (docs/terrain.md "Anisotropic ground")
+breaklines = ""                # lines the ground steps across (an ice cliff, a moraine's
+                               # edge): "" none; "auto": found where the selected landmarks
+                               # step (terrain.find_breaklines); or a vector file (GeoPackage,
+                               # GeoJSON, Shapefile, WKT), a relative path read from this
+                               # file's folder. Step heights fitted (docs/terrain.md)
+breakline_width = "auto"       # scale of each step's logistic (m), or "auto": fitted
+breakline_taper = "auto"       # length a step dies out over before a line's end inside the
+                               # survey (m), or "auto": fitted
 compare_constant_mean = false  # simulation: also fit a constant-mean GP, scored on the truth
 
 [prior]                        # the satellite DEM (prior.tif): RasterMean, a + b * DEM by GLS
@@ -138,6 +146,8 @@ _OPEN_TABLES = {
     ("localize",),
 }
 _EXTRA_ALLOWED = {("sensors",): {"odometry", "camera", "gps", "tilt"}}
+# Keys of either type (metres or "auto"), checked with the rest of their kind at load.
+_CHECKED_LATER = {("reconstruct", "breakline_width"), ("reconstruct", "breakline_taper")}
 
 
 def _open_table_keys(where: tuple[str, ...]) -> set[str]:
@@ -181,6 +191,8 @@ def _check(user: dict[str, Any], ref: dict[str, Any], where: tuple[str, ...]) ->
                 raise bad_input(path, value, '"auto" or a list [ny, nx] ([] = own cells)', "")
         elif (*where, key) == ("reconstruct", "anisotropy"):
             anisotropy_option(value, path)
+        elif (*where, key) in _CHECKED_LATER:
+            pass  # metres or "auto": toolkit.breaklines_io.scenario_breaklines
         elif (*where, key) == ("prior", "coarse") and value not in ("mesh", "area-means"):
             raise bad_input(path, value, '"mesh" or "area-means"', 'coarse = "mesh"')
         elif isinstance(value, dict):
@@ -277,6 +289,10 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         given = set(user.get("site", {})) | set((overrides or {}).get("site", {}))
         base = Path(path).resolve().parent if path is not None else Path.cwd()
         scenario["site"] = resolve_dem_site(scenario["site"], given, base)
+    from .breaklines_io import scenario_breaklines  # a bad lines file fails here, by key
+
+    base = Path(path).resolve().parent if path is not None else Path.cwd()
+    scenario["reconstruct"] = scenario_breaklines(scenario["reconstruct"], base)
     if int(scenario["plan"]["n_swaths"]) < 1:
         raise bad_input(
             "plan.n_swaths", scenario["plan"]["n_swaths"], "an integer >= 1", "e.g. n_swaths = 4"

@@ -27,7 +27,7 @@ from terrain import RasterMean
 from terrain.atomic import atomic_path
 from terrain.errors import InputError, bad_input
 
-from .breaklines_io import is_search, with_breaklines
+from .breaklines_io import is_search, scenario_lines, with_breaklines
 from .certify import require_checkpoints_on
 from .config import load_scenario
 from .export._files import output_folder, previous_products, remove_stale, staged_folder
@@ -265,7 +265,8 @@ def process(
         map's CRS from the CRS it declares; WKT in the map's CRS) or vertex arrays in the
         map's CRS (``terrain.BreaklineMean`` on the prior mean; heights fitted); ``"auto"``:
         found in the selected landmarks (``terrain.find_breaklines``; what was found and
-        dropped in the certificate's ``inputs.breakline_search``).
+        dropped in the certificate's ``inputs.breakline_search``). None: the settings'
+        ``[reconstruct] breaklines`` (with their width and taper; ``""``: none).
     breakline_width : float or "auto"
         Scale of each step's logistic, m; ``"auto"``: each line's own, chosen by the fit.
     breakline_taper : float or "auto"
@@ -280,10 +281,13 @@ def process(
         ``elevation``, ``elevation_std``, ``elevation_std_relative``, m).
     """
     settings = config if isinstance(config, dict) else load_scenario(config)
+    lines = (breaklines, breakline_width, breakline_taper)
+    if breaklines is None:  # the scenario's [reconstruct] breaklines, width and taper
+        lines = scenario_lines(settings)
     with output_folder(out) as folder:
         return _process(
             log, prior, control, checkpoints, settings, folder, bounds, on_stage, on_progress,
-            truth, truth_path, images, on_frames, (breaklines, breakline_width, breakline_taper),
+            truth, truth_path, images, on_frames, lines,
         )  # fmt: skip
 
 

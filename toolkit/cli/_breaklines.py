@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -35,3 +35,16 @@ BreaklineTaper = Annotated[
         "each line's own, by least squares beside it.",
     ),
 ]
+
+
+def print_breakline_notes(console: Any, cert: dict[str, Any], mean: Any) -> None:
+    """Under the results table: what ``breaklines = "auto"`` found and dropped (the
+    certificate's ``inputs.breakline_search``), then each fitted step's height with its
+    1-sigma (``toolkit.breaklines_io.step_notes``); nothing for a map without breaklines."""
+    from rich.markup import escape
+
+    from toolkit.breaklines_io import step_notes
+
+    found = (cert.get("inputs") or {}).get("breakline_search") or []
+    for note in [*found, *step_notes(mean)]:
+        console.print(f"breaklines: {escape(note)}")

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ._breaklines import Breaklines, BreaklineTaper, BreaklineWidth
+from ._breaklines import Breaklines, BreaklineTaper, BreaklineWidth, print_breakline_notes
 from ._progress import certificate_rows, print_warnings, stage_progress
 
 
@@ -109,14 +109,8 @@ def process_command(
     for name, t in res.summary["timings_s"].items():
         table.add_row(f"time: {name} (s)", f"{t:.1f}")
     console.print(table)
-    if breaklines is not None:  # each step's height, and where it dies out inside the survey
-        from rich.markup import escape
-
-        from toolkit.breaklines_io import step_notes
-
-        found = (cert.get("inputs") or {}).get("breakline_search") or []
-        for note in [*found, *step_notes(res.objects["reconstruction"].gp.mean_)]:
-            console.print(f"breaklines: {escape(note)}")  # what was found, then each step
+    # what the search found (--breaklines auto), then each step's height and where it dies out
+    print_breakline_notes(console, cert, res.objects["reconstruction"].gp.mean_)
     if res.removed:
         console.print(
             f"removed {len(res.removed)} product(s) of an earlier run into {res.out} that this "

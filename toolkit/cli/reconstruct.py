@@ -190,6 +190,10 @@ def _reconstruct_csv(
     from ..stages import certify_stage, map_grid, reconstruct_stage
 
     settings = load_scenario(cfg, overrides)
+    if lines is None:  # --config's [reconstruct] breaklines (with their width and taper)
+        from ..breaklines_io import scenario_lines
+
+        lines = scenario_lines(settings) if scenario_lines(settings)[0] else None
     seed = int(overrides["seed"])
     table = read_samples(samples, crs)
     if table.note:

@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ._breaklines import print_breakline_notes
 from ._progress import certificate_rows, print_warnings, stage_progress
 
 
@@ -81,6 +82,8 @@ def run_command(
     for name, t in s["timings_s"].items():
         table.add_row(f"time: {name} (s)", f"{t:.1f}")
     console.print(table)
+    # [reconstruct] breaklines: what the search found ("auto"), then each fitted step
+    print_breakline_notes(console, cert, res.objects["reconstruction"].gp.mean_)
     print_warnings(console, cert)
 
 
