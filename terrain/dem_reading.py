@@ -36,8 +36,10 @@ def prior_reading(
     ``base``'s DEM reads it, or None when ``base`` is not a bound
     :class:`terrain.RasterMean` (a constant or a plane carries no step).
 
-    The lattice cells (the DEM's own pixels on the map, m) are each averaged over
-    ``ceil(cell / SUB_M)`` squared points (at most ``MAX_SUB`` squared); with ``cells`` the
+    The surface is averaged round each lattice centre over a pixel of the DEM (its own
+    cell on the map, or the lattice's when coarser: ``cells`` may lay a finer lattice than
+    the DEM's pixels), by ``ceil(side / SUB_M)`` squared points (at most ``MAX_SUB``
+    squared); with ``cells`` the
     averages go through the same coarse cells and mesh (or area means) as the DEM, else
     through bilinear interpolation of the lattice, as :meth:`terrain.RasterMean.dem`.
     """
@@ -49,10 +51,10 @@ def prior_reading(
     if not isinstance(base, RasterMean) or bound is None:
         return None
     grid = bound.grid
-    rx, ry = grid.resolution
-    sub = int(min(max(math.ceil(max(rx, ry) / SUB_M), 1), MAX_SUB))
+    fx, fy = (max(a, b) for a, b in zip(grid.resolution, bound.lattice[2:], strict=True))
+    sub = int(min(max(math.ceil(max(fx, fy) / SUB_M), 1), MAX_SUB))
     frac = (np.arange(sub) + 0.5) / sub - 0.5
-    dx, dy = np.meshgrid(frac * rx, frac * ry)
+    dx, dy = np.meshgrid(frac * fx, frac * fy)
     X, Y = np.meshgrid(grid.x, grid.y)  # north-up rows, as the bound values
     pts = np.column_stack(
         [(X[..., None] + dx.ravel()).ravel(), (Y[..., None] + dy.ravel()).ravel()]
