@@ -47,7 +47,7 @@ from .breakline_geometry import (
 )
 from .breakline_local import local_fit, near_samples
 from .breakline_settings import per_line, read_ends, setting_repr
-from .dem_reading import prior_reading
+from .dem_reading import coarse_columns, reads_steps
 from .errors import NotFittedError, bad_input
 from .linear_mean import (
     check_coefficients,
@@ -140,6 +140,7 @@ class BreaklineMean:
         self.taper, self.tapers_ = per_line(taper, "taper", n, '"auto" or 40.0', True)
         self.ends = read_ends(ends, n)
         self.open_ends_: tuple[tuple[bool, bool], ...] | None = None
+        self.coarse_steps_: bool | None = None  # set by fit: terrain.dem_reading
         self.coef_: np.ndarray | None = None
         self.coef_cov_: np.ndarray | None = None
         import shapely  # here: a dependency of the breaklines only
@@ -156,13 +157,16 @@ class BreaklineMean:
     # -- the linear-mean protocol (terrain.linear_mean) -------------------------------------
     @property
     def n_coef(self) -> int:
-        return int(self.base.n_coef) + len(self.lines) + len(self._hinged())
+        coarse = len(self.lines) if self.coarse_steps_ else 0  # terrain.dem_reading
+        return int(self.base.n_coef) + len(self.lines) + len(self._hinged()) + coarse
 
     @property
     def coef_names(self) -> tuple[str, ...]:
         steps = tuple(f"step{j + 1}_m" for j in range(len(self.lines)))
         hinges = tuple(f"hinge{j + 1}_m" for j in self._hinged())
-        return tuple(self.base.coef_names) + steps + hinges
+        n = len(self.lines) if self.coarse_steps_ else 0  # terrain.dem_reading
+        coarse = tuple(f"coarse_step{j + 1}_m" for j in range(n))
+        return tuple(self.base.coef_names) + steps + hinges + coarse
 
     def _hinged(self) -> list[int]:
         """The lines with an open end: each has a hinge column besides its step."""
@@ -202,7 +206,7 @@ class BreaklineMean:
         folds keep the map's open ends, whatever box their samples leave."""
         out = copy.copy(self)
         out.ends = read_ends(ends, len(self.lines))
-        out.open_ends_ = out.coef_ = out.coef_cov_ = None
+        out.open_ends_ = out.coef_ = out.coef_cov_ = out.coarse_steps_ = None
         return out
 
     def signed_distances(self, xy: np.ndarray, within: float) -> np.ndarray:
@@ -331,14 +335,8 @@ class BreaklineMean:
         DEM already carries of it (``terrain.dem_reading``: the step counted once)."""
         S, F = self._steps_and_hinges(xy)
         base = np.asarray(self.base.basis(xy), float)  # binds a raster base first
-        bound = getattr(getattr(self.base, "_shared", None), "bound", None)
-        key = (tuple(self.widths_ or ()), tuple(self.tapers_ or ()), self._open(), id(bound))
-        readers = self.__dict__.setdefault("_reading_cache", {})  # shared by copies
-        if key not in readers:
-            readers[key] = prior_reading(self.base, lambda p: self._steps_and_hinges(p)[0])
-        if readers[key] is not None:
-            S = S - readers[key](xy)
-        return np.column_stack([base, S, F])
+        S, coarse = coarse_columns(self, xy, S)
+        return np.column_stack([base, S, F, coarse])
 
     def open_ends(self, xy: np.ndarray) -> tuple[tuple[bool, bool], ...]:
         """Per line, whether its first and last vertex lie inside the bounding box of
@@ -368,6 +366,7 @@ class BreaklineMean:
         steps, steps_cov = out.local_steps(xy, z, spacing)
         S, F = out._steps_and_hinges(xy)
         base = np.asarray(self.base.basis(xy), float)  # and the hinges: smooth, like it
+        out.coarse_steps_ = reads_steps(self.base, out.widths_)  # the base bound by now
         tilt = (xy - xy.mean(axis=0)) / 100.0 if F.shape[1] else np.zeros((len(z), 0))
         p, q = base.shape[1], len(steps)
         # beside a plane, which they drop: the site's tilt is not a hinge's (on bei a
@@ -376,10 +375,14 @@ class BreaklineMean:
         beta, beta_cov = ols_coefficients(np.column_stack([base, F, tilt]), z - S @ steps)
         keep = p + F.shape[1]
         beta, beta_cov = beta[:keep], beta_cov[:keep, :keep]
-        coef = np.concatenate([beta[:p], steps, beta[p:]])
+        # the coarse steps start as the steps (together: the bare step, as the start saw it)
+        coarse = steps if out.coarse_steps_ else np.zeros(0)
+        coef = np.concatenate([beta[:p], steps, beta[p:], coarse])
         cov = np.zeros((out.n_coef, out.n_coef))
-        other = np.r_[0:p, p + q : out.n_coef]
-        cov[np.ix_(other, other)], cov[p : p + q, p : p + q] = beta_cov, steps_cov
+        other = np.r_[0:p, p + q : keep + q]
+        both = np.r_[p : p + q, keep + q : out.n_coef]  # the steps and the coarse steps
+        cov[np.ix_(other, other)] = beta_cov
+        cov[np.ix_(both, both)] = np.tile(steps_cov, (len(both) // q,) * 2)
         return out.with_coefficients(coef, cov)
 
     def choose_shape(

@@ -151,9 +151,10 @@ def test_glacimap_run_maps_a_scarp_drawn_in_the_scenario(tmp_path):
     # A 4 m scarp (1 m wide) across the small run's 300 m corner of the default site, read
     # as a DEM site; the line drawn in the scenario (a relative path). Reference: the same
     # run without the line. Measured (seed 0): the map's error about its shared offset
-    # (relative 1-sigma's row) 0.603 m without the line, 0.408 m with it; the prior's scale
-    # 0.93 (0.38 before 0.39.0 counted the step once: the map 0.96 m against 0.65 m); the
-    # step 5.97 +- 0.32 m (the two swaths' landmarks read 6.1 m by the local fit too).
+    # (relative 1-sigma's row) 0.603 m without the line, 0.464 m with it; the prior's scale
+    # 0.87 +- 0.12 (0.38 before 0.39.0 counted the step once: the map 0.922 m), the DEM
+    # lacking 0.94 +- 1.05 m of the smoothed step; the step 5.99 +- 0.32 m (the two swaths'
+    # landmarks read 6.1 m by the local fit too).
     import rasterio
     from _scenarios import small_run
 
@@ -186,7 +187,7 @@ def test_glacimap_run_maps_a_scarp_drawn_in_the_scenario(tmp_path):
     coef = dict(zip(mean.coef_names, mean.coef_, strict=True))
     assert type(mean).__name__ == "BreaklineMean" and 2.0 < coef["step1_m"] < 8.0
     assert coef["scale"] == pytest.approx(1.0, abs=0.3)
-    assert errors["drawn"] < 0.8 * errors["plain"], errors
+    assert errors["drawn"] < 0.85 * errors["plain"], errors
     cert = json.loads((tmp_path / "drawn" / "certificate.json").read_text())
     assert "cliff.wkt" in [f["name"] for f in cert["inputs"]["files"]]
     assert cert["scenario"]["reconstruct"]["breaklines"].endswith("lines/cliff.wkt")

@@ -202,6 +202,12 @@ def step_notes(mean: Any) -> list[str]:
             f"line {j + 1}: step {coef[k]:.2f} +- {np.sqrt(cov[k, k]):.2f} m up to its left, "
             f"{mean.widths_[j]:g} m wide"
         )
+        if f"coarse_step{j + 1}_m" in mean.coef_names:  # the prior DEM's share of it
+            c = mean.coef_names.index(f"coarse_step{j + 1}_m")
+            text += (
+                f"; the prior DEM lacks {coef[c]:.2f} +- {np.sqrt(cov[c, c]):.2f} m of its "
+                "smoothed step (0: the DEM holds the step)"
+            )
         inside = zip(("first", "last"), mean.open_ends_[j], strict=True)
         ends = [name for name, open_end in inside if open_end]
         if ends:
