@@ -110,6 +110,11 @@ class BreaklineMean:
     tapers_ : tuple of float or None
         Each line's taper, m (chosen by :meth:`fit` with ``taper="auto"`` for the lines with
         an open end).
+    coarse_steps_ : bool or None
+        Whether :meth:`fit` found a base DEM that smooths the steps over its pixels (a
+        bound :class:`terrain.RasterMean` with pixels >= 4 widths): then each step's column
+        is split in two, what the DEM cannot hold and its reading of the step, with the
+        coefficients ``step1_m``... and ``coarse_step1_m``... (``terrain.dem_reading``).
     """
 
     def __init__(
@@ -331,8 +336,9 @@ class BreaklineMean:
     def basis(self, xy: np.ndarray) -> np.ndarray:
         """Design matrix ``[h_base(x), S_1(x), ..., hinges]``, shape (n, n_coef): the
         base's columns, each line's step, then a hinge column for each line with an open
-        end (:meth:`_columns`). On a coarse DEM prior each step's column is less what the
-        DEM already carries of it (``terrain.dem_reading``: the step counted once)."""
+        end (:meth:`_columns`). On a coarse DEM prior (:attr:`coarse_steps_`) each step's
+        column is less the DEM's reading of it, and that reading follows the hinges with a
+        coefficient of its own (``coarse_step1_m``...: ``terrain.dem_reading``)."""
         S, F = self._steps_and_hinges(xy)
         base = np.asarray(self.base.basis(xy), float)  # binds a raster base first
         S, coarse = coarse_columns(self, xy, S)
