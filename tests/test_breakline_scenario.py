@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 
 from terrain import InputError, default_site
 from terrain.sampling import sample_dem
-from toolkit.breaklines_io import scenario_lines
+from toolkit.breaklines_io import scenario_lines, step_notes
 from toolkit.cli import app
 from toolkit.config import load_scenario
 
@@ -187,6 +187,9 @@ def test_glacimap_run_maps_a_scarp_drawn_in_the_scenario(tmp_path):
     coef = dict(zip(mean.coef_names, mean.coef_, strict=True))
     assert type(mean).__name__ == "BreaklineMean" and 2.0 < coef["step1_m"] < 8.0
     assert coef["scale"] == pytest.approx(1.0, abs=0.3)
+    # the step said with what the prior DEM lacks of it (it holds the scarp: near 0)
+    (note,) = step_notes(mean)
+    assert "the prior DEM lacks" in note and abs(coef["coarse_step1_m"]) < 2.5
     assert errors["drawn"] < 0.85 * errors["plain"], errors
     cert = json.loads((tmp_path / "drawn" / "certificate.json").read_text())
     assert "cliff.wkt" in [f["name"] for f in cert["inputs"]["files"]]
