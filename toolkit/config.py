@@ -283,15 +283,14 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         raise bad_input(
             "site.kind", scenario["site"]["kind"], "'default', 'random' or 'dem'", "pick one"
         )
+    base = Path(path).resolve().parent if path is not None else Path.cwd()  # relative paths
     if scenario["site"]["kind"] == "dem":  # path, CRS and bounds resolved once, here
         from .site_dem import resolve_dem_site
 
         given = set(user.get("site", {})) | set((overrides or {}).get("site", {}))
-        base = Path(path).resolve().parent if path is not None else Path.cwd()
         scenario["site"] = resolve_dem_site(scenario["site"], given, base)
     from .breaklines_io import scenario_breaklines  # a bad lines file fails here, by key
 
-    base = Path(path).resolve().parent if path is not None else Path.cwd()
     scenario["reconstruct"] = scenario_breaklines(scenario["reconstruct"], base)
     if int(scenario["plan"]["n_swaths"]) < 1:
         raise bad_input(
