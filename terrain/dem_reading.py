@@ -49,19 +49,19 @@ def prior_reading(
     The surface is averaged round each lattice centre over a pixel of the DEM (its own
     cell on the map, or the lattice's when coarser: ``cells`` may lay a finer lattice than
     the DEM's pixels), by ``ceil(side / SUB_M)`` squared points (at most ``MAX_SUB``
-    squared); with ``cells`` the
-    averages go through the same coarse cells and mesh (or area means) as the DEM, else
-    through bilinear interpolation of the lattice, as :meth:`terrain.RasterMean.dem`.
+    squared); with ``cells`` the averages go through the same coarse cells and mesh (or
+    area means) as the DEM, else through bilinear interpolation of the lattice, as
+    :meth:`terrain.RasterMean.dem`.
     """
     from scipy.interpolate import RegularGridInterpolator
 
     from .raster_mean import COARSE_READINGS, RasterMean
 
-    bound = getattr(getattr(base, "_shared", None), "bound", None)
+    bound = _bound(base)
     if not isinstance(base, RasterMean) or bound is None:
         return None
     grid = bound.grid
-    fx, fy = (max(a, b) for a, b in zip(grid.resolution, bound.lattice[2:], strict=True))
+    fx, fy = _pixel(bound)
     sub = int(min(max(math.ceil(max(fx, fy) / SUB_M), 1), MAX_SUB))
     frac = (np.arange(sub) + 0.5) / sub - 0.5
     dx, dy = np.meshgrid(frac * fx, frac * fy)
@@ -90,11 +90,10 @@ def reads_steps(base: object, widths: tuple[float, ...] | None) -> bool:
     smooths the steps over its cells, whose reading of them :func:`coarse_columns` adds."""
     from .raster_mean import RasterMean
 
-    bound = getattr(getattr(base, "_shared", None), "bound", None)
+    bound = _bound(base)
     if not isinstance(base, RasterMean) or bound is None or not widths:
         return False
-    pixel = max(max(a, b) for a, b in zip(bound.grid.resolution, bound.lattice[2:], strict=True))
-    return pixel >= PIXEL_WIDTHS * max(widths)
+    return max(_pixel(bound)) >= PIXEL_WIDTHS * max(widths)
 
 
 def coarse_columns(mean: object, xy: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -105,10 +104,22 @@ def coarse_columns(mean: object, xy: np.ndarray, S: np.ndarray) -> tuple[np.ndar
     step. ``(S, (n, 0))`` when the mean's fit found no such prior (``coarse_steps_``)."""
     if not getattr(mean, "coarse_steps_", False):
         return S, np.zeros((len(S), 0))
-    bound = getattr(mean.base._shared, "bound", None)  # a re-bind lays a new lattice
-    key = (tuple(mean.widths_), tuple(mean.tapers_ or ()), mean._open(), id(bound))
+    bound = _bound(mean.base)  # a re-bind lays a new lattice: read again
+    key = (tuple(mean.widths_), tuple(mean.tapers_ or ()), mean._open())
     readers = mean.__dict__.setdefault("_reading_cache", {})  # shared by copies
-    if key not in readers:
-        readers[key] = prior_reading(mean.base, lambda p: mean._steps_and_hinges(p)[0])
-    read = readers[key](xy)
+    if key not in readers or readers[key][0] is not bound:
+        readers[key] = (bound, prior_reading(mean.base, lambda p: mean._steps_and_hinges(p)[0]))
+    read = readers[key][1](xy)
     return S - read, read
+
+
+def _bound(base: object) -> object:
+    """The raster base's bound lattice (``RasterMean._shared.bound``), or None."""
+    return getattr(getattr(base, "_shared", None), "bound", None)
+
+
+def _pixel(bound: object) -> tuple[float, float]:
+    """The side (m, x and y) of a DEM pixel as the bound lattice reads it: the lattice's
+    cell, or the DEM's own cell on the map when that is coarser."""
+    pairs = zip(bound.grid.resolution, bound.lattice[2:], strict=True)
+    return tuple(max(a, b) for a, b in pairs)
