@@ -194,3 +194,21 @@ def test_glacimap_run_maps_a_scarp_drawn_in_the_scenario(tmp_path):
     cert = json.loads((tmp_path / "drawn" / "certificate.json").read_text())
     assert "cliff.wkt" in [f["name"] for f in cert["inputs"]["files"]]
     assert cert["scenario"]["reconstruct"]["breaklines"].endswith("lines/cliff.wkt")
+
+
+def test_a_dropped_line_comes_with_the_advice_to_draw_it(monkeypatch):
+    # A search that dropped its one line (as on a rover's four swaths across a 4 m scarp:
+    # 3.03 +- 0.93 m, not told from zero) says so, and how to map the step anyway.
+    import terrain
+    from toolkit.breaklines_io import DROPPED_HINT, with_breaklines
+
+    found = terrain.BreaklineSearch(
+        [], [], [], [], ["433 m line: step 3.03 +- 0.93 m, under 5 sd"], 19.1, 0.02, 3708, 9, 9,
+        np.zeros((0, 2)),
+    )  # fmt: skip
+    monkeypatch.setattr(terrain, "find_breaklines", lambda samples: found)
+    notes: list[str] = []
+    mean = with_breaklines("constant", "auto", notes=notes, samples=object())
+    assert mean == "constant"  # no line: the plain mean
+    assert notes[1].startswith("dropped: 433 m line") and notes[2] == DROPPED_HINT
+    assert "--breaklines FILE" in DROPPED_HINT

@@ -39,6 +39,14 @@ __all__ = [
 FIELD = "--breaklines"
 #: ``--breaklines auto``: lines found in the samples (``terrain.find_breaklines``).
 AUTO = "auto"
+#: Said after the lines the search dropped: a step seen on few tracks is not confirmed
+#: (a rover's four swaths across a 4 m scarp: 3.03 +- 0.93 m), and a user who knows where
+#: it runs maps it best by drawing it (docs/terrain.md "The search on a rover's own survey").
+DROPPED_HINT = (
+    "a dropped line may still be a step the samples cannot confirm (seen on few tracks): "
+    "if you know where it runs, draw it in a vector file (--breaklines FILE, or the "
+    "scenario's [reconstruct] breaklines)"
+)
 
 
 def read_breaklines(
@@ -109,6 +117,8 @@ def with_breaklines(
         if notes is not None:
             notes.append(search.summary())
             notes.extend(f"dropped: {why}" for why in search.dropped)
+            if search.dropped:  # e.g. a scarp seen on few swaths: not confirmed, maybe real
+                notes.append(DROPPED_HINT)
         if not search.lines:
             return mean
         lines = search.lines
