@@ -216,7 +216,8 @@ def step_notes(mean: Any) -> list[str]:
             c = mean.coef_names.index(f"coarse_step{j + 1}_m")
             text += (
                 f"; the prior DEM lacks {coef[c]:.2f} +- {np.sqrt(cov[c, c]):.2f} m of its "
-                "smoothed step (0: the DEM holds the step)"
+                "smoothed step (about 0 when the DEM holds the step on the map's own lattice; "
+                "loosely read for a DEM resampled from another grid)"
             )
         inside = zip(("first", "last"), mean.open_ends_[j], strict=True)
         ends = [name for name, open_end in inside if open_end]
