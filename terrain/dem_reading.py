@@ -86,14 +86,17 @@ def prior_reading(
 
 def reads_steps(base: object, widths: tuple[float, ...] | None) -> bool:
     """Whether ``base`` is a bound :class:`terrain.RasterMean` whose pixels (on the map,
-    m) are at least :data:`PIXEL_WIDTHS` times the widest of ``widths`` (m): a DEM that
-    smooths the steps over its cells, whose reading of them :func:`coarse_columns` adds."""
+    m; with ``cells``, its coarse cells: it is read through their means) are at least
+    :data:`PIXEL_WIDTHS` times the widest of ``widths`` (m): a DEM that smooths the steps
+    over its cells, whose reading of them :func:`coarse_columns` adds."""
     from .raster_mean import RasterMean
 
     bound = _bound(base)
     if not isinstance(base, RasterMean) or bound is None or not widths:
         return False
-    return max(_pixel(bound)) >= PIXEL_WIDTHS * max(widths)
+    coarse = base.coarse_and_own_cell_m()  # None without cells
+    side = max(max(_pixel(bound)), coarse[0] if coarse else 0.0)
+    return side >= PIXEL_WIDTHS * max(widths)
 
 
 def coarse_columns(mean: object, xy: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,7 @@ from terrain import (
     coarse_dem,
     default_site,
 )
-from terrain.dem_reading import prior_reading
+from terrain.dem_reading import prior_reading, reads_steps
 from terrain.sampling import sample_dem
 
 X0, Y0 = 526000.0, 6475000.0
@@ -113,3 +113,14 @@ def test_a_drawn_scarp_on_a_coarse_prior_helps_off_the_swaths(prior_has_the_step
     # what the DEM lacks of the step: nothing when it has the scarp, all of it when not
     assert coef["coarse_step1_m"] == pytest.approx(0.0 if prior_has_the_step else 4.0, abs=0.5)
     assert rmse["line"] < 0.8 * rmse["plain"], rmse
+
+
+def test_a_fine_dem_smooths_the_step_only_through_coarse_cells():
+    # A 2 m DEM resolves a 1 m wide step (2 < 4 widths: the bare step is kept); read
+    # through 8 x 8 cells of 75 m it smooths it like a satellite DEM (the step is split).
+    fine = _plane_dem(cell=2.0)
+    box = (X0, Y0, X0 + 600.0, Y0 + 600.0)
+    assert not reads_steps(RasterMean(fine, offset="fit", cells=None).bind(CRS, box), (1.0,))
+    assert reads_steps(RasterMean(fine, offset="fit", cells=(8, 8)).bind(CRS, box), (1.0,))
+    assert reads_steps(RasterMean(_plane_dem(), offset="fit").bind(CRS, box), (1.0,))  # 75 m
+    assert not reads_steps("constant", (1.0,))
