@@ -193,7 +193,8 @@ def _reconstruct_csv(
     if lines is None:  # --config's [reconstruct] breaklines (with their width and taper)
         from ..breaklines_io import scenario_lines
 
-        lines = scenario_lines(settings) if scenario_lines(settings)[0] else None
+        given = scenario_lines(settings)
+        lines = given if given[0] is not None else None
     seed = int(overrides["seed"])
     table = read_samples(samples, crs)
     if table.note:
