@@ -43,7 +43,8 @@ from .raster_boxes import lattice as _lattice
 from .raster_boxes import ring as _ring
 from .raster_boxes import transform_box as _transform_box
 from .raster_boxes import union as _union
-from .raster_source import RasterSource, nodata_under, open_source, sample_pixels
+from .raster_source import RasterSource, nodata_under, open_source
+from .raster_warp import fill_nearest, gdal_average, read_under, sample_onto
 
 __all__ = ["AUTO_OWN_FACTOR", "PAPER_CELLS", "RESAMPLING", "RasterMean", "gdal_average"]
 
@@ -332,41 +333,38 @@ class RasterMean(OffsetScaleMean):
         the lattice values, the number of *source* cells under ``requested`` (map CRS) that
         are nodata (whatever the lattice: the 8 x 8 cells of ``cells=`` blend across a hole
         without landing on it), and how far a fill reached (m)."""
-        from scipy.ndimage import distance_transform_edt
-
-        src = self.source
-        xs, ys = to_src.transform(*_ring(grid.bounds))
-        ok = np.isfinite(xs) & np.isfinite(ys)
-        need = (xs[ok].min(), ys[ok].min(), xs[ok].max(), ys[ok].max())
-        values, transform = src.read(need, pad=_MARGIN_CELLS + 1)
-        out, inside = np.empty(grid.shape), np.empty(grid.shape, bool)
-        x0, y0, x1, y1 = src.bounds
-        inv = ~transform
-        step = max(1, _CHUNK // grid.nx)
-        for r0 in range(0, grid.ny, step):  # exact PROJ transform of every lattice centre
-            xx, yy = np.meshgrid(grid.x, grid.y[r0 : r0 + step])
-            sx, sy = to_src.transform(xx, yy)
-            inside[r0 : r0 + step] = (sx >= x0) & (sx <= x1) & (sy >= y0) & (sy <= y1)
-            col, row = inv.a * sx + inv.b * sy + inv.c, inv.d * sx + inv.e * sy + inv.f
-            if self.resampling != "average":
-                out[r0 : r0 + step] = sample_pixels(values, col, row, self.resampling)
-        if self.resampling == "average":
-            out = gdal_average(values, transform, src.crs, grid)
-        bad = ~np.isfinite(out)
-        if bad.all():
+        values, transform = self.read_source(grid, to_src)
+        out, inside = self.resample(values, transform, grid, to_src)
+        if not np.isfinite(out).any():
             raise bad_input(
                 "source nodata",
                 f"all {out.size} cells over {_fmt(grid.bounds)} are nodata",
                 "a DEM with valid elevations over the map",
                 "check the nodata value (nodata=, the file's nodata) or use another DEM",
             )
-        max_fill = 0.0
-        if bad.any():
-            dist, (ii, jj) = distance_transform_edt(bad, return_indices=True)
-            holes = bad & inside
-            max_fill = float(dist[holes].max() * grid.resolution[0]) if holes.any() else 0.0
-            out = out[ii, jj]
+        out, holes, dist = fill_nearest(out)
+        holes &= inside
+        max_fill = float(dist[holes].max() * grid.resolution[0]) if holes.any() else 0.0
         return out, nodata_under(values, transform, to_src, requested), max_fill
+
+    def read_source(self, grid: Grid, to_src: Transformer) -> tuple[np.ndarray, Any]:
+        """The source window the lattice ``grid`` is resampled from (values, NaN nodata, m;
+        the transform of its cell corners): under ``grid`` (``to_src``: map -> source) plus
+        a margin of cells."""
+        return read_under(self.source, grid, to_src, pad=_MARGIN_CELLS + 1)
+
+    def resample(
+        self, values: np.ndarray, transform: Any, grid: Grid, to_src: Transformer
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Source-window ``values`` (rows, cols; NaN nodata) resampled onto ``grid`` (map CRS)
+        by this mean's ``resampling`` -> ``(out, inside)``, both ``grid.shape``: NaN where no
+        valid source cell; whether each centre lies inside the source's bounds."""
+        average = self.resampling == "average"
+        method = "nearest" if average else self.resampling
+        out, inside = sample_onto(values, transform, to_src, grid, method, self.source.bounds)
+        if average:
+            out = gdal_average(values, transform, self.source.crs, grid)
+        return out, inside
 
     # -- evaluation -----------------------------------------------------------------------
     def dem(self, xy: np.ndarray) -> np.ndarray:
@@ -468,23 +466,3 @@ def _coarse_cell_m(requested: tuple, cells: tuple[int, int]) -> float:
     """Side (m) of the larger of ``cells`` (ny, nx) laid over ``requested`` (w, s, e, n)."""
     w, s, e, n = requested
     return max((e - w) / cells[1], (n - s) / cells[0])
-
-
-def gdal_average(values: np.ndarray, transform: Any, crs: CRS, grid: Grid) -> np.ndarray:
-    """GDAL's area-weighted average of the source cells under each lattice cell."""
-    import rasterio.warp
-    from rasterio.enums import Resampling
-
-    out = np.full(grid.shape, np.nan)
-    rasterio.warp.reproject(
-        values,
-        out,
-        src_transform=transform,
-        src_crs=crs.to_wkt(),
-        src_nodata=np.nan,
-        dst_transform=grid.transform,
-        dst_crs=grid.crs.to_wkt(),
-        dst_nodata=np.nan,
-        resampling=Resampling.average,
-    )
-    return out

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from terrain.dem_reading import dem_lacks
 from terrain.errors import bad_input
 
 from .vector_io import read_geometries
@@ -206,18 +207,17 @@ def step_notes(mean: Any) -> list[str]:
     if type(mean).__name__ != "BreaklineMean" or coef is None:
         return []
     out = []
+    lacks = dem_lacks(mean)
     for j in range(len(mean.lines)):
         k = mean.coef_names.index(f"step{j + 1}_m")
         text = (
             f"line {j + 1}: step {coef[k]:.2f} +- {np.sqrt(cov[k, k]):.2f} m up to its left, "
             f"{mean.widths_[j]:g} m wide"
         )
-        if f"coarse_step{j + 1}_m" in mean.coef_names:  # the prior DEM's share of it
-            c = mean.coef_names.index(f"coarse_step{j + 1}_m")
+        if lacks:  # the prior DEM's share of it (terrain.dem_reading)
             text += (
-                f"; the prior DEM lacks {coef[c]:.2f} +- {np.sqrt(cov[c, c]):.2f} m of its "
-                "smoothed step (about 0 when the DEM holds the step on the map's own lattice; "
-                "loosely read for a DEM resampled from another grid)"
+                f"; the prior DEM lacks {lacks[j][0]:.2f} +- {lacks[j][1]:.2f} m of it "
+                "(about 0 when the DEM holds the step, about the step when it predates it)"
             )
         inside = zip(("first", "last"), mean.open_ends_[j], strict=True)
         ends = [name for name, open_end in inside if open_end]

@@ -50,7 +50,7 @@ from pyproj import CRS, Transformer
 
 from terrain.errors import InputError, bad_input
 from terrain.grid import Grid, as_crs, utm_crs
-from terrain.raster_mean import gdal_average
+from terrain.raster_warp import fill_nearest, gdal_average, read_under, sample_onto
 
 __all__ = [
     "MAX_TRUTH_CELLS",
@@ -305,7 +305,7 @@ def resolve_dem_site(site: dict[str, Any], given: set[str], base: Path) -> dict[
     _check_size(nx, ny, res, bounds, src, crs)
     grid = Grid.from_bounds(bounds, res, crs)  # nodata share checked now, before any work
     inv = Transformer.from_crs(crs, src.crs, always_xy=True)
-    near = _sample(values, transform, inv, grid, "nearest")
+    near = sample_onto(values, transform, inv, grid, "nearest")[0]
     _check_nodata(int((~np.isfinite(near)).sum()), grid, frac, path)
     out["crs"] = crs.to_string()
     out["bounds"] = [float(v) for v in bounds]
@@ -366,31 +366,23 @@ def dem_truth(site: dict[str, Any]):
     InputError
         More than ``site.max_nodata_fraction`` of the site's cells are nodata.
     """
-    from scipy.ndimage import distance_transform_edt
-
     src = _open(Path(site["dem"]))
     crs = as_crs(site["crs"], "site.crs")
     res = float(site["truth_resolution_m"])
     grid = Grid.from_bounds(tuple(site["bounds"]), res, crs)
     _check_inside(grid.bounds, src, crs)
     to_src = Transformer.from_crs(crs, src.crs, always_xy=True)
-    xs, ys = to_src.transform(*_ring(grid.bounds))
-    need = (float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()))
-    values, transform = src.read(need, pad=3)  # cubic needs 2 cells either side
+    values, transform = read_under(src, grid, to_src, pad=3)  # cubic: 2 cells either side
     dem_cell = _cell_size_m(src, crs)
     method = "cubic" if res <= dem_cell else "average"
     if method == "cubic":
-        out = _sample(values, transform, to_src, grid, "cubic")
+        out = sample_onto(values, transform, to_src, grid, "cubic", nodata_nearest=True)[0]
     else:
         out = gdal_average(values, transform, src.crs, grid)
-    bad = ~np.isfinite(out)
-    n_bad = int(bad.sum())
+    n_bad = int(np.sum(~np.isfinite(out)))
     _check_nodata(n_bad, grid, float(site["max_nodata_fraction"]), Path(site["dem"]))
-    max_fill = 0.0
-    if n_bad:
-        dist, (ii, jj) = distance_transform_edt(bad, return_indices=True)
-        max_fill = float(dist[bad].max() * res)
-        out = out[ii, jj]
+    out, holes, dist = fill_nearest(out)
+    max_fill = float(dist[holes].max() * res) if n_bad else 0.0
     prov = site_provenance(site, src, crs, dem_cell, method, n_bad, out.size, max_fill)
     return grid.data_array(
         out, "elevation", source=f"real DEM {Path(site['dem']).name}", site_dem=json.dumps(prov)
@@ -406,29 +398,6 @@ def _check_nodata(n_bad: int, grid: Grid, frac: float, path: Path) -> None:
             f"a site with at most {100 * frac:g} % nodata (site.max_nodata_fraction)",
             "move site.bounds inside the DEM's valid data, or fill the DEM (gdal_fillnodata.py)",
         )
-
-
-def _sample(values: np.ndarray, transform, to_src: Transformer, grid: Grid, method: str):
-    """``values`` (source cells, NaN nodata) at the exact PROJ transform of every cell
-    centre of ``grid`` (GDAL's warper approximates the transform to 1/8 of a source cell:
-    11 m on a 90 m DEM, metres of elevation on a slope). ``method``: "nearest" or "cubic"
-    (Keys, as GDAL: :func:`terrain.raster_source.sample_pixels`); with "cubic" a cell whose
-    nearest DEM cell is nodata is NaN (filled and counted by the caller).
-    """
-    from terrain.raster_source import sample_pixels
-
-    out = np.empty(grid.shape)
-    inv = ~transform
-    step = max(1, 1_000_000 // grid.nx)
-    for r0 in range(0, grid.ny, step):
-        xx, yy = np.meshgrid(grid.x, grid.y[r0 : r0 + step])
-        sx, sy = to_src.transform(xx, yy)
-        col, row = inv.a * sx + inv.b * sy + inv.c, inv.d * sx + inv.e * sy + inv.f
-        z = sample_pixels(values, col, row, method)
-        if method != "nearest":
-            z[~np.isfinite(sample_pixels(values, col, row, "nearest"))] = np.nan
-        out[r0 : r0 + step] = z
-    return out
 
 
 def site_provenance(
