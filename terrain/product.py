@@ -112,7 +112,17 @@ def gp_provenance(gp: Any) -> dict[str, Any]:
         "mean_coefficients": json.dumps(mean_coefficients(gp.mean_)),
         # the lines of a BreaklineMean and their widths ("" without): a GeoJSON Feature
         "breaklines": json.dumps(gp.mean_.geojson()) if hasattr(gp.mean_, "geojson") else "",
+        # per line, what the prior DEM lacks of its step in the DEM's own metres, 1-sigma
+        # (terrain.dem_reading.dem_lacks; "" without a DEM prior that smooths the steps)
+        "breakline_dem_lacks": _dem_lacks_text(gp.mean_),
         "degenerate_fit": int(gp.degenerate_),
         "seed": int(gp.seed),
         "software": f"glacimap {software_version()}",
     }
+
+
+def _dem_lacks_text(mean: Any) -> str:
+    from .dem_reading import dem_lacks
+
+    lacks = dem_lacks(mean)
+    return json.dumps([{"m": v, "sd_m": sd} for v, sd in lacks]) if lacks else ""

@@ -151,10 +151,11 @@ def test_glacimap_run_maps_a_scarp_drawn_in_the_scenario(tmp_path):
     # A 4 m scarp (1 m wide) across the small run's 300 m corner of the default site, read
     # as a DEM site; the line drawn in the scenario (a relative path). Reference: the same
     # run without the line. Measured (seed 0): the map's error about its shared offset
-    # (relative 1-sigma's row) 0.603 m without the line, 0.464 m with it; the prior's scale
-    # 0.87 +- 0.12 (0.38 before 0.39.0 counted the step once: the map 0.922 m), the DEM
-    # lacking 0.94 +- 1.05 m of the smoothed step; the step 5.99 +- 0.32 m (the two swaths'
-    # landmarks read 6.1 m by the local fit too).
+    # (relative 1-sigma's row) 0.603 m without the line, 0.432 m with it; the prior's scale
+    # 0.956 (0.38 before 0.39.0 counted the step once: the map 0.922 m; 0.87 and 0.464 m
+    # before 0.40.0 read the step through the DEM's own warp), the DEM lacking -0.31 +- 0.54
+    # m of the step; the step 6.08 m (the two swaths' landmarks read 6.1 m by the local fit
+    # too).
     import rasterio
     from _scenarios import small_run
 
@@ -190,6 +191,11 @@ def test_glacimap_run_maps_a_scarp_drawn_in_the_scenario(tmp_path):
     # the step said with what the prior DEM lacks of it (it holds the scarp: near 0)
     (note,) = step_notes(mean)
     assert "the prior DEM lacks" in note and abs(coef["coarse_step1_m"]) < 2.5
+    # and the product records it (terrain.dem_reading.dem_lacks), as the note says it
+    attrs = xr.open_dataset(next((tmp_path / "drawn").rglob("product.nc"))).attrs
+    (lack,) = json.loads(attrs["breakline_dem_lacks"])
+    assert abs(lack["m"]) < 2.0 * lack["sd_m"] + 0.2
+    assert f"lacks {lack['m']:.2f} +- {lack['sd_m']:.2f} m" in note
     assert errors["drawn"] < 0.85 * errors["plain"], errors
     cert = json.loads((tmp_path / "drawn" / "certificate.json").read_text())
     assert "cliff.wkt" in [f["name"] for f in cert["inputs"]["files"]]

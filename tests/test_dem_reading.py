@@ -195,3 +195,24 @@ def test_a_dem_in_another_crs_reads_the_step_through_its_own_warp():
     coef = dict(zip(gp.mean_.coef_names, gp.mean_.coef_, strict=True))
     assert coef["coarse_step1_m"] == pytest.approx(0.0, abs=0.2)
     assert coef["scale"] == pytest.approx(1.0, abs=0.05)
+
+
+def test_the_dems_holes_are_read_as_the_dem_fills_them():
+    # Nodata pixels across the step (a 3 x 4 block and a row's run): the DEM's lattice fills
+    # them from the nearest valid cell, and the step's reading leaves the same pixels out and
+    # fills the same way, so the two still match (to the quadrature's 0.02 m) everywhere.
+    box = (X0, Y0, X0 + 600.0, Y0 + 600.0)
+
+    def step(p):
+        return 4.0 * expit(p[:, 1] - (Y0 + 300.0 + 0.2 * (p[:, 0] - X0)))
+
+    da = _geographic_pixel_means(step)
+    holes = da.values.copy()
+    i = int(np.argmin(np.abs(da.y.values - np.median(da.y.values))))
+    holes[i - 1 : i + 2, 10:14] = np.nan
+    holes[i + 3, 5:20] = np.nan
+    dem = RasterMean(da.copy(data=holes), source_crs="EPSG:4326", cells=None).bind(CRS, box)
+    assert dem.n_nodata_ > 0
+    reader = prior_reading(dem, lambda p: step(p)[:, None])
+    xy = Grid.from_bounds(box, 5.0, CRS).xy()
+    np.testing.assert_allclose(reader(xy)[:, 0], dem.dem(xy), atol=0.05)

@@ -139,7 +139,7 @@ def test_no_switch_by_chance_and_then_the_same_bits_as_without():
     for level in ("68", "95"):
         lo, hi = out[f"map_coverage_{level}_interval"]
         plo, phi = plain[f"map_coverage_{level}_interval"]
-        assert lo <= plo and hi >= phi
+        assert lo <= plo + 1e-12 and hi >= phi - 1e-12  # widened: equal up to rounding
         gap = abs(out[f"neighbourhood_matched_coverage_{level}"] - plain[f"map_coverage_{level}"])
         assert 0.0 <= out[f"design_sd_{level}"] < gap + 1e-12
 
