@@ -190,6 +190,14 @@ def _reductions(Q: np.ndarray, S: np.ndarray, r0: np.ndarray, usable: np.ndarray
     return red, num, denom
 
 
+def _logistic(across: np.ndarray, offsets: np.ndarray, scale: float) -> np.ndarray:
+    """``expit((across[:, :, None] - offsets) / scale)`` flattened to (m, d * o), by one
+    exponential per sample and direction: ``1 / (1 + exp(-a / s) exp(o / s))`` (|a|, |o| are
+    at most a radius and ``s`` at least a sixteenth of one, so neither factor overflows)."""
+    e = np.exp(-across / scale)[:, :, None] * np.exp(offsets / scale)
+    return (1.0 / (1.0 + e)).reshape(len(across), -1)
+
+
 def _scan(xy, z, centres, radius):
     """Each centre's best step line: its reduction of the residual sum of squares, the best
     ramp's, the cubic's residual sum of squares and degrees of freedom (nan / 0: too few
@@ -212,7 +220,8 @@ def _scan(xy, z, centres, radius):
         Q = np.linalg.qr(_surface(u))[0]  # the cubic's basis, once for every line below
         r0 = z[idx] - Q @ (Q.T @ z[idx])
         rss0[i], dof[i] = float(r0 @ r0), len(idx) - Q.shape[1]
-        proj = (u @ normals.T)[:, :, None] * radius - offsets  # (m, d, o), m from the line
+        across_all = (u @ normals.T) * radius  # (m, d), m along each normal
+        proj = across_all[:, :, None] - offsets  # (m, d, o), m from each line
         S = (proj > 0).reshape(len(idx), -1).astype(float)  # step columns (m, d * o)
         n_up = S.sum(axis=0)
         enough = (n_up >= MIN_SIDE) & (len(idx) - n_up >= MIN_SIDE)
@@ -221,9 +230,9 @@ def _scan(xy, z, centres, radius):
         red, num, denom = _reductions(Q, S, r0, enough)
         # a step a little wider than sharp, and the same lines as ramps: ground that bends
         # smoothly is fitted as well by a ramp; a step is not
-        flat = proj.reshape(len(idx), -1)
-        soft = _reductions(Q, expit(flat / (SOFT * radius)), r0, enough)
-        smooth[i] = _reductions(Q, expit(flat / (RAMP * radius)), r0, enough)[0].max()
+        soft = _reductions(Q, _logistic(across_all, offsets, SOFT * radius), r0, enough)
+        ramps = _logistic(across_all, offsets, RAMP * radius)
+        smooth[i] = _reductions(Q, ramps, r0, enough)[0].max()
         scale = SOFT * radius if soft[0].max() > red.max() else 0.0
         if scale:
             red, num, denom = soft
