@@ -199,6 +199,16 @@ def test_glacimap_run_maps_a_scarp_drawn_in_the_scenario(tmp_path):
     assert errors["drawn"] < 0.85 * errors["plain"], errors
     cert = json.loads((tmp_path / "drawn" / "certificate.json").read_text())
     assert "cliff.wkt" in [f["name"] for f in cert["inputs"]["files"]]
+    # the certificate and the report say the line, its step and the DEM's lack of it
+    (line,) = cert["breaklines"]
+    assert line["step_m"] == pytest.approx(coef["step1_m"], rel=1e-12)
+    assert line["dem_lacks_m"] == pytest.approx(lack["m"], rel=1e-12)
+    assert line["n_vertices"] == 81 and line["open_ends"] == []
+    html = (tmp_path / "drawn" / "report.html").read_text()
+    assert 'id="breaklines"' in html and "breakline(s) the map was fitted with" in html
+    plain = (tmp_path / "plain" / "report.html").read_text()
+    assert 'id="breaklines"' not in plain
+    assert "breaklines" not in json.loads((tmp_path / "plain" / "certificate.json").read_text())
     assert cert["scenario"]["reconstruct"]["breaklines"].endswith("lines/cliff.wkt")
 
 

@@ -31,6 +31,7 @@ from terrain.metrics import interval_coverage, standardized_error_stats
 from terrain.validation import CrossValidation
 from terrain.validation import json_safe as _clean
 
+from .breakline_record import breakline_rows
 from .certify_bias import bias_assessment
 from .certify_heldout import heldout_block
 from .certify_io import (
@@ -248,7 +249,9 @@ def certify(
     dict
         JSON-ready certificate; keys ``schema, dem, checkpoints, parameters, accuracy,
         contour_interval, verdicts, calibration, error_histogram, seed, software`` (and
-        ``created``, ``heldout_calibration`` when given).
+        ``created``, ``heldout_calibration`` when given; ``breaklines`` when the map was
+        fitted with them: each line's step and 1-sigma, width, open ends and what the prior
+        DEM lacks of it, :func:`toolkit.breakline_record.breakline_rows`).
 
     Raises
     ------
@@ -396,6 +399,9 @@ def certify(
         cert["created"] = str(created)
     if heldout_cal is not None:
         cert["heldout_calibration"] = heldout_cal
+    lines = breakline_rows(raster.provenance)  # the cliffs the map was fitted with
+    if lines:
+        cert["breaklines"] = lines
     return _clean(cert)
 
 

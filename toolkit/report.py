@@ -71,7 +71,7 @@ def _contour_levels(z: np.ndarray, interval: float, max_levels: int = 60) -> np.
     return np.arange(math.ceil(lo / step) * step, hi + step / 2, step)
 
 
-def _fig_elevation(raster: DemRaster, interval: float) -> dict[str, str]:
+def _fig_elevation(raster: DemRaster, interval: float, lines: list) -> dict[str, str]:
     from matplotlib.colors import LightSource
 
     plt = _plt()
@@ -91,9 +91,18 @@ def _fig_elevation(raster: DemRaster, interval: float) -> dict[str, str]:
         ys = raster.grid.y[::k] - raster.grid.bounds[1]
         ax.contour(xs, ys, z[::k, ::k], levels=levels, colors="k", linewidths=0.4)
     step = float(levels[1] - levels[0]) if levels.size > 1 else interval
+    w, s = raster.grid.bounds[:2]
+    for b in lines:  # the breaklines the map was fitted with (certificate "breaklines")
+        xy = np.asarray(b["vertices"], dtype=float)
+        ax.plot(xy[:, 0] - w, xy[:, 1] - s, color="crimson", linewidth=1.2)
+    if lines:  # lines run on past the map stay clipped to it
+        ax.set(xlim=extent[:2], ylim=extent[2:])
     fig.colorbar(im, ax=ax, shrink=0.85, label="elevation [m]")
     _axes(ax, "Elevation (hillshade, contours)")
-    return {"title": "Elevation", "src": _png(fig), "caption": f"contours every {step:g} m"}
+    caption = f"contours every {step:g} m"
+    if lines:
+        caption += f"; in red the {len(lines)} breakline(s) the map was fitted with"
+    return {"title": "Elevation", "src": _png(fig), "caption": caption}
 
 
 def _fig_std(raster: DemRaster, samples_xy: np.ndarray | None) -> dict[str, str]:
@@ -350,7 +359,7 @@ def write_report(
     if samples is not None:
         samples = np.asarray(getattr(samples, "xy", samples), dtype=float).reshape(-1, 2)
     interval = (cert.get("contour_interval") or {}).get("certified_m") or 1.0
-    figures = [_fig_elevation(raster, float(interval))]
+    figures = [_fig_elevation(raster, float(interval), cert.get("breaklines") or [])]
     if raster.elevation_std is not None:
         figures.append(_fig_std(raster, samples))
     if truth_v is not None:
