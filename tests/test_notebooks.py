@@ -23,6 +23,7 @@ NOTEBOOKS = (
     "06_change",
     "07_process_field",
     "08_camera_frames",
+    "09_real_inputs",
 )
 # First-party packages plus the libraries their public API returns or that read the products.
 ALLOWED_IMPORTS = {
