@@ -270,6 +270,14 @@ def test_cli_gp_route_rebuilds_a_breakline_mean(breakline_epochs, tmp_path):
     assert vol["volume_m3"] == pytest.approx(ref.volume_m3, rel=1e-9)
     assert vol["volume_std_m3"] == pytest.approx(ref.volume_std_m3, rel=1e-6)
     assert abs(vol["volume_m3"] - true_v) < 3 * vol["volume_std_m3"]
+    # each map's line and its step (a step change is not derived: the same 3 m step came
+    # out 2.63 +- 0.29 m at 1.23 m wide and 4.86 +- 0.55 m at 5.65 m, measured)
+    lines = vol["breaklines"]
+    assert [r["step_m"] for r in lines["before"]] == [rec_b.gp.mean_.coef_[2]]
+    assert [r["step_m"] for r in lines["after"]] == [rec_a.gp.mean_.coef_[2]]
+    assert [r["width_m"] for r in lines["after"]] == list(rec_a.gp.mean_.widths_)
+    assert "step_changes" not in lines
+    assert 'id="breaklines"' in (out / "change_report.html").read_text()
     # a product that does not record its lines (made before 0.36.0): variogram, said why
     old = tmp_path / "old"
     shutil.copytree(d / "before", old)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -151,6 +151,25 @@ def _hypso_fig(rows: list[dict[str, float]]) -> dict[str, str]:
     return {"id": "fig-hypsometry", "src": _png(fig), "caption": cap}
 
 
+def epoch_breaklines(before_attrs: Mapping[str, Any], after_attrs: Mapping[str, Any]) -> dict:
+    """The breaklines each epoch's map was fitted with (:func:`toolkit.breakline_record.
+    breakline_rows` of each product's attributes, vertices left out); ``{}`` when neither
+    has lines.
+
+    No step change is derived from them: each step's 1-sigma is given the width its own map
+    fitted, and the same 3 m step mapped in two epochs (``tests/test_cli_change_gp.py``)
+    came out 2.63 +- 0.29 m at 1.23 m wide and 4.86 +- 0.55 m at 5.65 m wide: a "change"
+    of 2.2 +- 0.6 m that is not there (docs/change.md)."""
+    from .breakline_record import breakline_rows
+
+    rows = {"before": breakline_rows(before_attrs), "after": breakline_rows(after_attrs)}
+    if not rows["before"] and not rows["after"]:
+        return {}
+    return {
+        k: [{n: v for n, v in r.items() if n != "vertices"} for r in rs] for k, rs in rows.items()
+    }
+
+
 def write_change_report(
     path: str | os.PathLike,
     diff: Any,
@@ -158,8 +177,10 @@ def write_change_report(
     outline: Any,
     profile: list[dict[str, float]] | None = None,
     title: str = "glacimap glacier change",
+    breaklines: Mapping[str, Any] | None = None,
 ) -> Path:
-    """Write the HTML change report (self-contained: figures are data URIs)."""
+    """Write the HTML change report (self-contained: figures are data URIs); ``breaklines``
+    (:func:`epoch_breaklines`) adds the lines each epoch's map was fitted with."""
     import jinja2
 
     diff = north_up(diff)
@@ -191,6 +212,7 @@ def write_change_report(
         coreg=coreg,
         figures=figures,
         provenance={k: v for k, v in diff.attrs.items() if k not in skip},
+        breaklines=breaklines or {},
     )
     target = Path(path)
     with atomic_path(target) as tmp:

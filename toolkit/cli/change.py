@@ -131,6 +131,7 @@ def change_command(
     from ..change_inputs import locate_product
     from ..change_report import (
         band_sigma_from,
+        epoch_breaklines,
         hypsometric_profile,
         write_change_cog,
         write_change_report,
@@ -167,6 +168,7 @@ def change_command(
     note = f"{vc.details['method_note']}. Route {route_reason}"  # the HTML report shows it
     vc = dataclasses.replace(vc, details={**vc.details, "method_note": note})
     profile = hypsometric_profile(diff, glacier, band_sigma=band_sigma_from(vc, grid))
+    lines = epoch_breaklines(b.attrs, a.attrs)  # the cliffs each map was fitted with
     out_dir = ensure_writable_dir(out)
     with staged_folder(out_dir) as tmp:
         write_change_cog(diff, tmp / FILES["cog"])
@@ -189,9 +191,10 @@ def change_command(
             else None,
             "hypsometry": profile,
             "outline_wkt": shapely.to_wkt(glacier, rounding_precision=3),
+            "breaklines": lines or None,
         }
         write_volume_tables(vc, tmp / FILES["json"], tmp / FILES["csv"], **extra)
-        write_change_report(tmp / FILES["report"], diff, vc, glacier, profile)
+        write_change_report(tmp / FILES["report"], diff, vc, glacier, profile, breaklines=lines)
     console.print(f"route: {route} ({route_reason})")
     for name, at in (vc.details.get("along_track") or {}).items():
         if isinstance(at, dict) and "status" in at:  # included, or said why not: never silent
