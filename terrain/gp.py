@@ -21,11 +21,12 @@ import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 
 from .anisotropy import Anisotropy
+from .breakline_evidence import gls_mean
 from .coarse_variance import predict_checked_lattice, variance_step
 from .errors import NotFittedError, bad_input
 from .exact_predict import predict_exact
 from .gp_hyper import HyperparameterMixin
-from .gp_mean import GLS_MAX_SAMPLES, bind_mean, gls_coefficients, n_coef
+from .gp_mean import GLS_MAX_SAMPLES, bind_mean, n_coef
 from .gp_settings import check_samples, check_settings
 from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
@@ -353,14 +354,12 @@ class TerrainGP(HyperparameterMixin):
     def _set_coefficients(self, samples, L=None, idx=None) -> np.ndarray:
         """GLS coefficients of a linear mean at the fitted kernel (R&W Eq 2.42); updates the
         mean and the residuals, returns the residuals (n,)."""
-        H = np.asarray(self.mean_.basis(samples.xy), dtype=float)
         idx = slice(None) if idx is None else idx
         nv = self.z_var_[idx] + self.nugget_
-        beta, cov = gls_coefficients(
-            self.kernel_, self.X_train_[idx], samples.z[idx], nv, H[idx], L
-        )
-        self.mean_ = self.mean_.with_coefficients(beta, cov)
-        self.coef_cov_ = cov
+        args = (self.kernel_, self.X_train_[idx], samples.xy[idx], samples.z[idx], nv, L)
+        self.mean_, beta, cov = gls_mean(self.mean_, *args)  # terrain.breakline_evidence
+        H = np.asarray(self.mean_.basis(samples.xy), dtype=float)
+        self.mean_, self.coef_cov_ = self.mean_.with_coefficients(beta, cov), cov
         self.H_ = H
         if L is not None:
             self.W_ = solve_triangular(L, H, lower=True, check_finite=False)

@@ -151,11 +151,11 @@ def test_glacimap_run_maps_a_scarp_drawn_in_the_scenario(tmp_path):
     # A 4 m scarp (1 m wide) across the small run's 300 m corner of the default site, read
     # as a DEM site; the line drawn in the scenario (a relative path). Reference: the same
     # run without the line. Measured (seed 0): the map's error about its shared offset
-    # (relative 1-sigma's row) 0.603 m without the line, 0.432 m with it; the prior's scale
-    # 0.956 (0.38 before 0.39.0 counted the step once: the map 0.922 m; 0.87 and 0.464 m
-    # before 0.40.0 read the step through the DEM's own warp), the DEM lacking -0.31 +- 0.54
-    # m of the step; the step 6.08 m (the two swaths' landmarks read 6.1 m by the local fit
-    # too).
+    # (relative 1-sigma's row) 0.603 m without the line, 0.425 m with it; the prior's scale
+    # 0.938 (0.38 before 0.39.0 counted the step once: the map 0.922 m; 0.87 and 0.464 m
+    # before 0.40.0 read the step through the DEM's own warp and chose its width by the
+    # map's evidence), the DEM lacking -0.18 +- 0.59 m of the step; the step 5.56 m, 1.41 m
+    # wide (6.08 m at the local planes' width; the landmarks' own errors are in it).
     import rasterio
     from _scenarios import small_run
 

@@ -161,8 +161,8 @@ def test_a_dem_in_another_crs_reads_the_step_through_its_own_warp():
     # a pixel off the pixel centres). The reading replays that warp: the step read from its
     # own pixel means matches the DEM of the step to 0.02 m (of 4 m) inside the map; the
     # lattice-cell means used before (0.39.0) missed by 0.55 m, and on the two swaths
-    # below fitted 0.56 m of coarse step to a DEM that holds all of it (now 0.03; scale
-    # 0.986 -> 1.013, step 3.83 for 4). Measured, seed 0.
+    # below fitted 0.56 m of coarse step to a DEM that holds all of it (now 0.05; scale
+    # 0.986 -> 1.013, step 3.77 for 4, 0.93 m wide). Measured, seed 0.
     box = (X0, Y0, X0 + 600.0, Y0 + 600.0)
     u = np.linspace(X0 - 50, X0 + 650, 141)
     line = np.column_stack([u, Y0 + 300.0 + 20.0 * np.sin((u - X0) / 90.0)])
