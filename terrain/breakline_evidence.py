@@ -25,7 +25,7 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import minimize_scalar
 
 from .breakline import WIDTHS
-from .dem_reading import reads_steps
+from .dem_reading import coarse_columns, reads_steps
 from .gp_mean import gls_coefficients
 from .linalg import cholesky_jitter
 from .radial_table import tabulate
@@ -56,11 +56,17 @@ def widths_by_evidence(
         K[np.diag_indices_from(K)] += noise_var
         L, _ = cholesky_jitter(K, what="breakline width kernel matrix")
     wy = solve_triangular(L, z, lower=True, check_finite=False)
+    # the basis as BreaklineMean.basis lays it, [base, S - read, hinges, read], with the
+    # prior DEM's reading of the steps kept at the start's widths while the search runs: it
+    # smooths a step over 4 widths or more, so a width's change hardly moves it, and each
+    # new reading would replay the DEM's warp (seconds on a fine DEM read through cells)
+    base = np.asarray(mean.base.basis(xy), dtype=float)
+    read = coarse_columns(mean, xy, mean._steps_and_hinges(xy)[0])[1]
 
     def misfit(widths: list[float]) -> float:
-        trial = copy.copy(mean)
-        trial.widths_ = tuple(widths)
-        W = solve_triangular(L, trial.basis(xy), lower=True, check_finite=False)
+        S, F = mean._steps_and_hinges(xy, widths=tuple(widths))
+        H = np.column_stack([base, S - read if read.shape[1] else S, F, read])
+        W = solve_triangular(L, H, lower=True, check_finite=False)
         b = W.T @ wy
         return float(wy @ wy - b @ np.linalg.lstsq(W.T @ W, b, rcond=None)[0])
 
