@@ -103,7 +103,8 @@ class BreaklineMean:
     coef_cov_ : ndarray of shape (n_coef, n_coef) or None
         Their covariance.
     widths_ : tuple of float or None
-        Each line's step width, m (chosen by :meth:`fit` with ``width="auto"``).
+        Each line's step width, m (chosen by :meth:`fit` with ``width="auto"``, then refined
+        with its 1-sigma ``widths_sd_`` by the map's evidence: terrain.breakline_evidence).
     open_ends_ : tuple of (bool, bool) or None
         Per line, whether its first and last vertex are open (set by :meth:`fit` from
         ``ends``; before it every end runs on unless ``ends`` says).
@@ -235,8 +236,7 @@ class BreaklineMean:
 
     def _geometry(self, xy: np.ndarray, within: float) -> dict[str, Any]:
         """What the step columns need at ``xy`` (n, 2): signed distances within ``within``
-        m, and room for the arc positions of the points' nearest points on each line
-        (:meth:`_arcs`, found when asked)."""
+        m, room for the arc positions of the points' nearest points on the lines (_arcs)."""
         D = self.signed_distances(xy, within)
         arcs = [np.full(len(xy), np.nan) for _ in self.lines]
         return {"xy": xy, "D": D, "s": arcs, "layers": {}}

@@ -30,10 +30,12 @@ from .gp_mean import gls_coefficients
 from .linalg import cholesky_jitter
 from .radial_table import tabulate
 
-__all__ = ["SPAN", "gls_mean", "widths_by_evidence"]
+__all__ = ["SPAN", "gls_mean", "width_uncertainty", "widths_by_evidence"]
 
 #: The refined width stays within this factor of the local planes' choice.
 SPAN = 3.0
+#: Step in the width's logarithm of the misfit's central differences (10 %).
+H_LOG = 0.1
 
 
 def widths_by_evidence(
@@ -45,10 +47,16 @@ def widths_by_evidence(
     (``L`` itself when given; None when nothing was refined and none was given).
 
     ``X`` (n, 2) are the kernel's coordinates of the samples at ``xy`` (n, 2, map CRS, m),
-    ``z`` (n,) their elevations (m). Any mean but a fitted ``BreaklineMean(width="auto")``
-    is returned as it is.
+    ``z`` (n,) their elevations (m). The refined mean carries each width's 1-sigma
+    (``widths_sd_``, m) and what it adds to the coefficients' covariance (``width_cov_``;
+    :func:`width_uncertainty`). A mean whose widths were given with a 1-sigma (a map rebuilt
+    from its product: ``glacimap change``) keeps its widths and has both derived again. Any
+    other mean but a fitted ``BreaklineMean(width="auto")`` is returned as it is.
     """
-    if type(mean).__name__ != "BreaklineMean" or mean.width != "auto" or mean.widths_ is None:
+    if type(mean).__name__ != "BreaklineMean" or mean.widths_ is None:
+        return mean, L
+    refine = mean.width == "auto"
+    if not refine and getattr(mean, "widths_sd_", None) is None:
         return mean, L
     if L is None:
         reach = float(np.hypot(*np.ptp(X, axis=0))) if X.shape[0] else 0.0
@@ -63,15 +71,19 @@ def widths_by_evidence(
     base = np.asarray(mean.base.basis(xy), dtype=float)
     read = coarse_columns(mean, xy, mean._steps_and_hinges(xy)[0])[1]
 
-    def misfit(widths: list[float]) -> float:
+    def gls(widths: list[float]) -> tuple[float, np.ndarray]:
         S, F = mean._steps_and_hinges(xy, widths=tuple(widths))
         H = np.column_stack([base, S - read if read.shape[1] else S, F, read])
         W = solve_triangular(L, H, lower=True, check_finite=False)
         b = W.T @ wy
-        return float(wy @ wy - b @ np.linalg.lstsq(W.T @ W, b, rcond=None)[0])
+        beta = np.linalg.lstsq(W.T @ W, b, rcond=None)[0]
+        return float(wy @ wy - b @ beta), beta
+
+    def misfit(widths: list[float]) -> float:
+        return gls(widths)[0]
 
     widths = list(mean.widths_)
-    for j, start in enumerate(mean.widths_):
+    for j, start in enumerate(mean.widths_ if refine else ()):
         lo, hi = max(start / SPAN, WIDTHS[0]), start * SPAN
 
         def at(u: float, j: int = j, ws: tuple = tuple(widths)) -> float:
@@ -84,7 +96,36 @@ def widths_by_evidence(
             widths = trial
     out = copy.copy(mean)
     out.widths_ = tuple(widths)
+    out.widths_sd_, out.width_cov_ = width_uncertainty(gls, widths)
     return out, L
+
+
+def width_uncertainty(gls: Any, widths: list[float]) -> tuple[tuple[float, ...], np.ndarray]:
+    """``(widths_sd, cov)``: each width's 1-sigma (m) from the curvature of the profile
+    misfit in its logarithm, and the covariance (p, p) its uncertainty adds to the GLS
+    coefficients.
+
+    ``gls(widths)`` gives ``(r^T (K + Sigma)^-1 r, beta_hat)`` at those widths. The misfit is
+    ``-2 log p(z)`` up to terms the widths do not move (the kernel fixed), so the variance
+    of ``u = log w`` is ``2 / misfit''(u)`` (the profile likelihood's observed information,
+    the coefficients profiled out), and the coefficients move with it as ``J = d beta_hat /
+    du``: the joint information's inverse has the coefficient block ``cov_GLS + J var(u)
+    J^T`` (the Schur complement of the joint Hessian). Central differences, ``u +- H_LOG``.
+    A width the misfit does not curve about (flat, or at the search's bound) gets the
+    search's whole span as its 1-sigma, ``log SPAN``.
+    """
+    f0, beta0 = gls(widths)
+    cov = np.zeros((beta0.size, beta0.size))
+    sds = []
+    for j, w in enumerate(widths):
+        fp, bp = gls([*widths[:j], w * np.exp(H_LOG), *widths[j + 1 :]])
+        fm, bm = gls([*widths[:j], w * np.exp(-H_LOG), *widths[j + 1 :]])
+        curve = (fp + fm - 2.0 * f0) / H_LOG**2
+        var_u = 2.0 / curve if curve > 2.0 / np.log(SPAN) ** 2 else np.log(SPAN) ** 2
+        J = (bp - bm) / (2.0 * H_LOG)
+        cov += var_u * np.outer(J, J)
+        sds.append(float(w * np.sqrt(var_u)))
+    return tuple(sds), cov
 
 
 def gls_mean(
@@ -97,4 +138,7 @@ def gls_mean(
     mean, L = widths_by_evidence(mean, kernel, X, xy, z, noise_var, L)
     H = np.asarray(mean.basis(xy), dtype=float)
     beta, cov = gls_coefficients(kernel, X, z, noise_var, H, L)
+    extra = getattr(mean, "width_cov_", None)
+    if extra is not None and extra.shape == cov.shape:
+        cov = cov + extra  # the widths' own uncertainty (width_uncertainty)
     return mean, beta, cov

@@ -111,7 +111,7 @@ def gp_provenance(gp: Any) -> dict[str, Any]:
         "kernel_windows": "none" if wp is None else wp.describe(),
         "mean_coefficients": json.dumps(mean_coefficients(gp.mean_)),
         # the lines of a BreaklineMean and their widths ("" without): a GeoJSON Feature
-        "breaklines": json.dumps(gp.mean_.geojson()) if hasattr(gp.mean_, "geojson") else "",
+        "breaklines": _breaklines_text(gp.mean_),
         # per line, what the prior DEM lacks of its step in the DEM's own metres, 1-sigma
         # (terrain.dem_reading.dem_lacks; "" without a DEM prior that smooths the steps)
         "breakline_dem_lacks": _dem_lacks_text(gp.mean_),
@@ -119,6 +119,17 @@ def gp_provenance(gp: Any) -> dict[str, Any]:
         "seed": int(gp.seed),
         "software": f"glacimap {software_version()}",
     }
+
+
+def _breaklines_text(mean: Any) -> str:
+    """The lines as :meth:`terrain.BreaklineMean.geojson` gives them, with each width's
+    1-sigma (``widths_sd_m``, m; None for a width given, not chosen)."""
+    if not hasattr(mean, "geojson"):
+        return ""
+    feature = mean.geojson()
+    sds = getattr(mean, "widths_sd_", None)
+    feature["properties"]["widths_sd_m"] = None if sds is None else [float(s) for s in sds]
+    return json.dumps(feature)
 
 
 def _dem_lacks_text(mean: Any) -> str:

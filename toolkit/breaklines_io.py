@@ -210,9 +210,11 @@ def step_notes(mean: Any) -> list[str]:
     lacks = dem_lacks(mean)
     for j in range(len(mean.lines)):
         k = mean.coef_names.index(f"step{j + 1}_m")
+        sds = getattr(mean, "widths_sd_", None)  # a width chosen by the map's evidence
+        width = f"{mean.widths_[j]:g}" + ("" if sds is None else f" +- {sds[j]:.2f}")
         text = (
             f"line {j + 1}: step {coef[k]:.2f} +- {np.sqrt(cov[k, k]):.2f} m up to its left, "
-            f"{mean.widths_[j]:g} m wide"
+            f"{width} m wide"
         )
         if lacks:  # the prior DEM's share of it (terrain.dem_reading)
             text += (

@@ -169,7 +169,10 @@ def _mean_from_provenance(
         shape = feature["properties"]  # tapers: None for a line run on at both ends
         tapers = shape.get("tapers_m") or "auto"  # not recorded before 0.37.0: none open
         ends = shape.get("open_ends") or "auto"
-        return BreaklineMean(lines, base=base, width=shape["widths_m"], taper=tapers, ends=ends)
+        out = BreaklineMean(lines, base=base, width=shape["widths_m"], taper=tapers, ends=ends)
+        if shape.get("widths_sd_m") is not None:  # chosen by the map's evidence: the fit
+            out.widths_sd_ = tuple(shape["widths_sd_m"])  # derives their 1-sigma again
+        return out
     if mean_repr.startswith("ConstantMean(value=None"):
         return "constant"
     if mean_repr.startswith("RasterMean("):

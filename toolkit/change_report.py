@@ -153,21 +153,20 @@ def _hypso_fig(rows: list[dict[str, float]]) -> dict[str, str]:
 
 def epoch_breaklines(before_attrs: Mapping[str, Any], after_attrs: Mapping[str, Any]) -> dict:
     """The breaklines each epoch's map was fitted with (:func:`toolkit.breakline_record.
-    breakline_rows` of each product's attributes, vertices left out); ``{}`` when neither
-    has lines.
-
-    No step change is derived from them: each step's 1-sigma is given the width its own map
-    fitted, and the same 3 m step mapped in two epochs (``tests/test_cli_change_gp.py``)
-    came out 2.63 +- 0.29 m at 1.23 m wide and 4.86 +- 0.55 m at 5.65 m wide: a "change"
-    of 2.2 +- 0.6 m that is not there (docs/change.md)."""
-    from .breakline_record import breakline_rows
+    breakline_rows` of each product's attributes, vertices left out) and, per line of the
+    before map, its step's change (``step_changes``: :func:`toolkit.breakline_record.
+    step_changes`, a change with its 1-sigma or the reason none is given); ``{}`` when
+    neither has lines."""
+    from .breakline_record import breakline_rows, step_changes
 
     rows = {"before": breakline_rows(before_attrs), "after": breakline_rows(after_attrs)}
     if not rows["before"] and not rows["after"]:
         return {}
-    return {
+    out: dict[str, Any] = {
         k: [{n: v for n, v in r.items() if n != "vertices"} for r in rs] for k, rs in rows.items()
     }
+    out["step_changes"] = step_changes(rows["before"], rows["after"])
+    return out
 
 
 def write_change_report(
