@@ -394,8 +394,9 @@ def _along_track_term(gp: Any, g: dict[str, Any], model: AlongTrackModel | None)
     extra = getattr(getattr(gp, "samples_", None), "extra", {}) or {}
     if "t_s" not in extra:
         return {
-            "status": "not available: the samples carry no observation time (t_s); "
-            "re-export samples.csv with glacimap >= this version"
+            "status": "not available: the samples carry no observation time (t_s): spot "
+            "heights with independent errors need none; a rover's samples.csv written by "
+            "glacimap localize / process carries it (re-export one without a t_s column)"
         }
     idx = g["sample_index"]
     t = np.asarray(extra["t_s"], float)[idx]

@@ -103,6 +103,12 @@ def test_cli_fits_the_step_and_records_it(scarp_csv, tmp_path):
     assert height == pytest.approx(3.0, abs=0.45)  # measured 3.14 +- 0.15 (3 sigma)
     inputs = {r["role"]: r["name"] for r in json.loads(attrs["inputs"])}
     assert inputs["breaklines"] == "cliff.geojson"
+    # without checkpoints the certificate still states the line it was fitted with (the
+    # step, its width and their 1-sigma), as one with checkpoints does
+    cert = json.loads((out / "certificate.json").read_text())
+    (row,) = cert["breaklines"]
+    assert row["step_m"] == pytest.approx(height, abs=1e-4)
+    assert row["width_m"] > 0 and row["width_sd_m"] > 0 and row["step_sd_m"] > 0
 
 
 def test_cli_reads_a_lon_lat_geopackage_as_the_same_lines(scarp_csv, tmp_path):

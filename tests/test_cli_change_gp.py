@@ -134,6 +134,26 @@ def test_rebuilt_gp_reproduces_the_map(epochs):
     np.testing.assert_array_equal(k.theta, rec.gp.kernel_.theta)
 
 
+def test_samples_that_state_no_crs_are_read_in_the_maps(epochs, tmp_path):
+    # a user's CSV of x, y, z (reconstruct took --crs; change has no --crs): read in the
+    # map's CRS and said so; a file stating another CRS is refused as before
+    d, *_ = epochs
+    text = (d / "before" / "samples.csv").read_text().splitlines()
+    cols = text[0].split(",")
+    keep = [i for i, c in enumerate(cols) if c != "crs"]
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join(",".join(r.split(",")[i] for i in keep) for r in text) + "\n")
+    ds = xr.open_dataset(d / "before" / "product.nc").load()
+    gp, note = rebuild_gp(ds, locate_product(d / "before", plain, "BEFORE"))
+    assert gp is not None, note
+    assert "plain.csv states no CRS: read in the map's, EPSG:32608" in note
+    other = tmp_path / "other.csv"
+    other.write_text(plain.read_text())
+    (tmp_path / "other.crs").write_text("EPSG:32607\n")
+    gp, note = rebuild_gp(ds, locate_product(d / "before", other, "BEFORE"))
+    assert gp is None and "is not in the map's CRS (EPSG:32608)" in note
+
+
 def test_kernel_with_microscale_parts_comes_back_from_the_provenance():
     # Real-terrain maps carry the nugget as Microscale parts (50k: one per length the window
     # evidence weights); they were read as a count mismatch and the GP route fell back.

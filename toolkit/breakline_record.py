@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SAME_LINE_M", "breakline_rows", "step_changes"]
+__all__ = ["SAME_LINE_M", "breakline_block", "breakline_rows", "step_changes"]
 
 #: Two epochs' lines are one line when no vertex moved by more than this (m).
 SAME_LINE_M = 0.01
@@ -66,6 +66,13 @@ def breakline_rows(provenance: Mapping[str, Any]) -> list[dict[str, Any]]:
             }
         )
     return rows
+
+
+def breakline_block(provenance: Mapping[str, Any]) -> dict[str, Any]:
+    """``{"breaklines": rows}`` for a certificate (:func:`breakline_rows`), ``{}`` for a map
+    without lines: what a certificate with or without checkpoints states of them."""
+    rows = breakline_rows(provenance)
+    return {"breaklines": rows} if rows else {}
 
 
 def step_changes(before: list[dict[str, Any]], after: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -31,7 +31,7 @@ from terrain.metrics import interval_coverage, standardized_error_stats
 from terrain.validation import CrossValidation
 from terrain.validation import json_safe as _clean
 
-from .breakline_record import breakline_rows
+from .breakline_record import breakline_block
 from .certify_bias import bias_assessment
 from .certify_heldout import heldout_block
 from .certify_io import (
@@ -399,9 +399,7 @@ def certify(
         cert["created"] = str(created)
     if heldout_cal is not None:
         cert["heldout_calibration"] = heldout_cal
-    lines = breakline_rows(raster.provenance)  # the cliffs the map was fitted with
-    if lines:
-        cert["breaklines"] = lines
+    cert.update(breakline_block(raster.provenance))  # the cliffs the map was fitted with
     return _clean(cert)
 
 

@@ -214,6 +214,7 @@ def rebuild_gp(
     from terrain import Anisotropy, Grid, TerrainGP
     from terrain.grid import north_up
 
+    from .certify_io import read_checkpoints
     from .samples_io import read_samples
 
     if where.samples is None:
@@ -230,11 +231,14 @@ def rebuild_gp(
         mean = _mean_from_provenance(
             str(attrs["mean_function"]), where.folder, prior, str(attrs.get("breaklines", ""))
         )
-        samples = read_samples(where.samples).samples
+        grid = Grid.from_dataarray(north_up(product))
+        # a CSV that states no CRS (reconstruct took --crs) is read in the map's: the map
+        # was made in its samples' CRS, and a wrong file fails the reproduction check below
+        stated = read_checkpoints(where.samples).crs
+        samples = read_samples(where.samples, crs=stated or grid.crs).samples
     except (InputError, KeyError, TypeError, ValueError) as exc:
         return None, f"{where.raster}: {exc}"
-    grid = Grid.from_dataarray(north_up(product))
-    if samples.crs is None or not samples.crs.equals(grid.crs, ignore_axis_order=True):
+    if not samples.crs.equals(grid.crs, ignore_axis_order=True):
         return None, f"{where.samples} is not in the map's CRS ({grid.crs.to_string()})"
     if hasattr(mean, "for_grid"):  # as toolkit.stages.reconstruct_stage: cells over the map
         mean.for_grid(grid)
@@ -258,6 +262,8 @@ def rebuild_gp(
         f"rebuilt from {samples.n} samples at the recorded {gp.kernel_!r}, nugget "
         f"{nugget:.3g} m^2: mean within {diff:.1e} m of the product at {idx.size} cells"
     )
+    if stated is None:
+        note += f" ({where.samples.name} states no CRS: read in the map's, {grid.crs.to_string()})"
     if not diff <= REPRODUCE_TOL_M:
         return None, f"the GP rebuilt from {where.samples} does not reproduce the map ({note})"
     return gp, note

@@ -298,6 +298,7 @@ def certify_stage(
     Returns the certificate dict (:func:`toolkit.certify.certify`) with the kernel chosen by
     evidence and its rivals under ``reconstruction``.
     """
+    from .breakline_record import breakline_block
     from .certify import certify, heldout_block
 
     cfg = settings["certify"]
@@ -311,6 +312,7 @@ def certify_stage(
         cert = {"seed": int(seed), "checkpoints": None, "warnings": ["no checkpoints given"]}
         if rec.heldout is not None:
             cert["heldout_calibration"] = heldout_block(rec.heldout)
+        cert.update(breakline_block(product.attrs))  # the cliffs the map was fitted with
     if note:  # stated with the certificate's warnings (printed by run / process)
         cert.setdefault("warnings", []).append(note)
     cert["reconstruction"] = {

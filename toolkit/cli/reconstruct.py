@@ -275,9 +275,11 @@ def _reconstruct_csv(
     )
     cert = certify_stage(rec, checkpoints, settings, seed) if checkpoints is not None else None
     if cert is None and rec.heldout is not None:
+        from ..breakline_record import breakline_block
         from ..certify import heldout_block
 
         cert = {"seed": seed, "heldout_calibration": heldout_block(rec.heldout)}
+        cert.update(breakline_block(rec.product.attrs))  # the cliffs the map was fitted with
         if rec.product.attrs.get("prior_note"):  # certify_stage states it with checkpoints
             cert["warnings"] = [rec.product.attrs["prior_note"]]
     before = previous_products(out_dir, SUMMARY)
