@@ -45,6 +45,7 @@ bench: setup
 	$(BIN)/python benchmarks/landmark_nees.py --seeds 0-9 --out benchmarks/results/landmark_nees.json
 	$(BIN)/python benchmarks/marginals_order.py --out benchmarks/results/marginals_order.json
 	$(BIN)/python benchmarks/breakline_steps.py --out benchmarks/results/breakline_steps.json
+	$(BIN)/python benchmarks/real_contours.py --out benchmarks/results/real_contours.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache
