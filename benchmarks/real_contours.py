@@ -13,6 +13,7 @@ their distance to the nearest fitted point, and what the user's own check says
 (docs/terrain.md "A real map's contours as the samples").
 
     python benchmarks/real_contours.py                 # the four offsets, ~2 min
+    python benchmarks/real_contours.py --horizontal-sd 10   # the contours' position error
 """
 
 from __future__ import annotations
@@ -43,8 +44,12 @@ def contours() -> tuple[np.ndarray, np.ndarray, str]:
     return xy, np.asarray(d["y"], float).ravel(), real_dems.LOCAL_TM
 
 
-def case(offset: int, check: bool) -> dict[str, Any]:
-    """Levels ``offset``, ``offset + 4``... held out; the row of scores."""
+def case(offset: int, check: bool, horizontal_sd: float = 0.0) -> dict[str, Any]:
+    """Levels ``offset``, ``offset + 4``... held out; the row of scores. ``horizontal_sd``
+    (m): the samples' horizontal 1-sigma through the map's slope in the 1-sigma and the
+    check, as ``glacimap reconstruct --horizontal-sd`` adds it
+    (:func:`toolkit.error_budget.heldout_slope_term`, the slope from the map on 100 m
+    cells)."""
     from scipy.interpolate import LinearNDInterpolator, RBFInterpolator
     from scipy.spatial import cKDTree
 
@@ -66,6 +71,16 @@ def case(offset: int, check: bool) -> dict[str, Any]:
     gp = TerrainGP(seed=0).fit(samples)
     mu, sd = gp.predict(test, return_std=True)
     t_gp = time.perf_counter() - t0
+    extra = None
+    if horizontal_sd:
+        from terrain import Grid
+        from toolkit.error_budget import heldout_slope_term
+
+        lo, hi = fit.min(axis=0), fit.max(axis=0)
+        box = (lo[0], lo[1], hi[0], hi[1])
+        coarse = gp.predict_grid(Grid.from_bounds(box, 100.0, crs=crs))
+        extra = heldout_slope_term(gp, coarse, horizontal_sd)
+        sd = np.sqrt(sd**2 + extra(None, test, sd**2))
 
     def rmse(p: np.ndarray) -> float:
         return float(np.sqrt(np.mean((p[hull] - truth[hull]) ** 2)))
@@ -73,6 +88,7 @@ def case(offset: int, check: bool) -> dict[str, Any]:
     zs = np.abs(mu - truth)[hull] / sd[hull]
     row: dict[str, Any] = {
         "offset": offset,
+        "horizontal_sd_m": horizontal_sd,
         "n_fit": int(fit.shape[0]),
         "n_held": int(hull.sum()),
         "rmse_delaunay_m": rmse(delaunay),
@@ -103,7 +119,7 @@ def case(offset: int, check: bool) -> dict[str, Any]:
                 }  # fmt: skip
             )
     if check:
-        cv = cross_validate(gp, samples, n_folds=5, seed=0)
+        cv = cross_validate(gp, samples, n_folds=5, seed=0, extra_variance=extra)
         row["check_cov95"] = 100.0 * float(cv.pooled["map_coverage_95"])
         row["check_cov68"] = 100.0 * float(cv.pooled["map_coverage_68"])
     return row
@@ -113,9 +129,11 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--offsets", nargs="+", type=int, default=[0, 1, 2, 3])
     p.add_argument("--no-check", action="store_true", help="skip cross_validate (~15 s a row)")
+    p.add_argument("--horizontal-sd", type=float, default=0.0,
+                   help="the samples' horizontal 1-sigma, m (glacimap reconstruct's)")  # fmt: skip
     p.add_argument("--out", type=Path, default=HERE / "results" / "real_contours.json")
     args = p.parse_args(argv)
-    rows = [case(k, not args.no_check) for k in args.offsets]
+    rows = [case(k, not args.no_check, args.horizontal_sd) for k in args.offsets]
     cols = [
         ("offset", "held out", "d"),
         ("n_held", "points", "d"),

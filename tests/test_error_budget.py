@@ -128,3 +128,37 @@ def test_heldout_hook_is_the_maps_along_track_term_from_training_samples_only():
     assert (expect > 0).all()
     none = heldout_along_track(gp, xy, xy, np.zeros(200))
     np.testing.assert_array_equal(none(train, query, var_f), 0.0)
+
+
+def test_the_samples_horizontal_sigma_enters_through_the_slope_and_the_check():
+    """``horizontal_sd`` (digitised contours' position error): on a plane of slope (0.1,
+    -0.05) m/m a 10 m horizontal 1-sigma adds w * (0.1^2 + 0.05^2) * 10^2 = w * 1.25 m^2 to
+    both 1-sigmas (hand computation); the held-out check's hook adds the same at held-out
+    points from the map's slope, north-up rows or not."""
+    from toolkit.error_budget import heldout_slope_term
+
+    rng = np.random.default_rng(4)
+    xy = np.column_stack([rng.uniform(0, 60, 400), rng.uniform(0, 60, 400)])
+    z = 0.1 * xy[:, 0] - 0.05 * xy[:, 1]
+    samples = ElevationSamples(xy, z, np.full(400, 0.01**2), crs="EPSG:32608")
+    plane = lambda p: 0.1 * p[:, 0] - 0.05 * p[:, 1]  # noqa: E731 - the prior mean
+    gp = TerrainGP(kernel=Matern(1.0, 20.0), mean=plane, optimize=False, nugget=1e-6)
+    gp.fit(samples)
+    ds = gp.predict_grid(Grid.from_bounds((0.0, 0.0, 60.0, 60.0), 2.0, "EPSG:32608"))
+    args = (ds, gp, xy, np.zeros(400), 0.0)
+    plain, out = inflate_std(*args), inflate_std(*args, horizontal_sd=10.0)
+    x, y = np.meshgrid(out["x"].values, out["y"].values)
+    prior = gp.kernel_.diag(np.column_stack([x.ravel(), y.ravel()])).reshape(x.shape)
+    w = np.clip(1.0 - ds["elevation_std"].values ** 2 / prior, 0, 1)
+    for name in ("elevation_std", "elevation_std_relative"):
+        added = out[name].values ** 2 - plain[name].values ** 2
+        np.testing.assert_allclose(added, w * 1.25, rtol=1e-6)
+    assert out.attrs["samples_horizontal_std_m"] == 10.0
+    assert "horizontal 1-sigma" in out.attrs["std_error_budget"]
+    assert "samples_horizontal_std_m" not in plain.attrs
+    query = np.array([[30.0, 30.0], [11.0, 47.0]])
+    var_f = np.array([0.01, 0.04])
+    w_q = np.clip(1.0 - var_f / gp.kernel_.diag(query), 0, 1)
+    for product in (ds, ds.isel(y=slice(None, None, -1))):  # rows north-up or south-up
+        hook = heldout_slope_term(gp, product, 10.0)
+        np.testing.assert_allclose(hook(None, query, var_f), w_q * 1.25, rtol=1e-6)

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import rasterio
+import xarray as xr
 from typer.testing import CliRunner
 
 from terrain import InputError, default_site
@@ -383,3 +384,31 @@ def test_checkpoints_partly_on_the_map_pass_the_early_check(site):
     table["x"][0] = 700000.0
     with pytest.raises(InputError, match=r"0 of 2 usable .* 2 outside the DEM"):
         require_checkpoints_on(table, grid, crs=CRS)
+
+
+def test_a_horizontal_sigma_widens_the_map_where_it_slopes(samples_csv, tmp_path):
+    # digitised contours' position error (docs/terrain.md "A real map's contours"): the
+    # product states it and its 1-sigma grows by w |grad z|^2 h^2; a negative one is refused
+    # naming the option, before anything is written
+    bad = tmp_path / "bad"
+    res, text = _invoke("reconstruct", str(samples_csv), "--crs", CRS, "--resolution", "20",
+                        "--horizontal-sd", "-3", "--out", str(bad))  # fmt: skip
+    assert res.exit_code != 0 and "--horizontal-sd" in text and ">= 0" in text
+    assert not bad.exists() or not any(bad.iterdir())
+    maps = {}
+    for h in (None, "5"):
+        out = tmp_path / f"h{h}"
+        extra = [] if h is None else ["--horizontal-sd", h]
+        res, text = _invoke("reconstruct", str(samples_csv), "--crs", CRS, "--resolution",
+                            "20", *extra, "--out", str(out))  # fmt: skip
+        assert res.exit_code == 0, text
+        maps[h] = xr.open_dataset(out / "product.nc").load()
+    plain, wide = maps[None], maps["5"]
+    assert wide.attrs["samples_horizontal_std_m"] == 5.0
+    np.testing.assert_array_equal(wide["elevation"].values, plain["elevation"].values)
+    added = wide["elevation_std"].values ** 2 - plain["elevation_std"].values ** 2
+    gy, gx = np.gradient(plain["elevation"].values, plain["y"].values, plain["x"].values)
+    slope2 = gx**2 + gy**2
+    assert (added >= -1e-9).all() and (added <= 25.0 * slope2 + 1e-9).all()  # w <= 1
+    steep = slope2 > np.quantile(slope2, 0.9)
+    assert added[steep].mean() > 0.5 * 25.0 * slope2[steep].mean()

@@ -25,7 +25,7 @@ from terrain import ElevationSamples, Grid, TerrainGP, cross_validate
 from terrain.errors import InputError, bad_input
 
 from .config import anisotropy_option
-from .error_budget import heldout_along_track, inflate_std
+from .error_budget import heldout_along_track, heldout_slope_term, inflate_std
 
 __all__ = [
     "Reconstruction",
@@ -144,6 +144,7 @@ def reconstruct_stage(
     heldout_folds: int = 5,
     landmark_t_s: np.ndarray | None = None,
     shared_xy_std: tuple[float, float] | None = None,
+    horizontal_sd: float | None = None,
 ) -> Reconstruction:
     """The GP map (the terrain layer's defaults: kernel by evidence) with its error budget.
 
@@ -173,6 +174,10 @@ def reconstruct_stage(
     shared_xy_std : (float, float), optional
         1-sigma of the survey's map-wide horizontal offset, east and north (m): its error
         through the map's slope joins both 1-sigmas (:func:`toolkit.error_budget.inflate_std`).
+    horizontal_sd : float, optional
+        The samples' own horizontal 1-sigma (m; digitised contours): through the map's slope
+        into both 1-sigmas and into the held-out check (:func:`toolkit.error_budget.
+        heldout_slope_term`).
 
     Returns
     -------
@@ -211,6 +216,7 @@ def reconstruct_stage(
         shared_everywhere=fitted_offset,
         landmark_t_s=landmark_t_s,
         shared_xy_std=shared_xy_std,
+        horizontal_sd=horizontal_sd,
     )
     product.attrs.update(
         {
@@ -226,6 +232,8 @@ def reconstruct_stage(
             along = heldout_along_track(
                 gp, samples.xy, landmark_xy, landmark_rel_z_std, landmark_t_s
             )
+            if horizontal_sd:  # the check is of the 1-sigma the product states
+                along = _summed(along, heldout_slope_term(gp, product, horizontal_sd))
             heldout = cross_validate(
                 gp,
                 samples,
@@ -243,6 +251,15 @@ def reconstruct_stage(
     if prior_note:
         product.attrs["prior_note"] = prior_note
     return Reconstruction(product=product, gp=gp, samples=samples, heldout=heldout)
+
+
+def _summed(*hooks: Any) -> Any:
+    """One ``extra_variance`` hook of :func:`terrain.cross_validate` adding ``hooks``."""
+
+    def extra(train: np.ndarray, query: np.ndarray, var_f: np.ndarray) -> np.ndarray:
+        return np.sum([h(train, query, var_f) for h in hooks], axis=0)
+
+    return extra
 
 
 def prior_coarsening_note(mean: Any) -> str | None:

@@ -107,6 +107,15 @@ def reconstruct(
     breaklines: Breaklines = None,
     breakline_width: BreaklineWidth = "auto",
     breakline_taper: BreaklineTaper = "auto",
+    horizontal_sd: Annotated[
+        float | None,
+        typer.Option(
+            "--horizontal-sd",
+            help="The samples' own horizontal 1-sigma, m (digitised contours: the source "
+            "map's positional accuracy, ~10-15 m at 1:50,000): its error through the map's "
+            "slope joins the 1-sigma and the held-out check. Default: none.",
+        ),
+    ] = None,
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
@@ -124,6 +133,11 @@ def reconstruct(
         )
     if bounds is not None and like is not None:
         raise bad_input("--bounds / --like", "both", "at most one", "pass one of them")
+    if horizontal_sd is not None:  # before the fit: a bad value fails in milliseconds
+        from terrain.errors import positive_number
+
+        fix = "the samples' horizontal 1-sigma in metres, e.g. --horizontal-sd 12"
+        horizontal_sd = positive_number("--horizontal-sd", horizontal_sd, fix, allow_zero=True)
     from ..export._files import output_folder
 
     with output_folder(out) as out_dir:  # a failed run leaves no empty --out behind
@@ -151,6 +165,7 @@ def reconstruct(
             checkpoints,
             config,
             lines,
+            horizontal_sd,
         )
 
 
@@ -175,8 +190,9 @@ def _file(lines: Any) -> Any:
 
 
 def _reconstruct_csv(
-    samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None
-):
+    samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None,
+    horizontal_sd=None,
+):  # fmt: skip
     import warnings
 
     from terrain.errors import DegenerateFitWarning
@@ -236,6 +252,7 @@ def _reconstruct_csv(
                 landmark_rel_z_std=table.track_z_std,
                 shared_z_std=table.shared_z_std,
                 heldout_folds=int(settings["certify"]["heldout_folds"]),
+                horizontal_sd=horizontal_sd,
             )
     if lines is not None:  # each step's height, and where it dies out inside the survey
         from ..breaklines_io import step_notes
