@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     import real_dems
 
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--feature", choices=("scarp", "scarp-end"), default="scarp")
+    p.add_argument("--feature", choices=("scarp", "scarp-end", "scarp-along"), default="scarp")
     p.add_argument("--sizes", nargs="+", type=int, default=[3000])
     p.add_argument("--sites", nargs="+", default=list(real_dems.NAMES))
     p.add_argument("--out", type=Path, default=HERE / "results" / "breakline_steps.json")
