@@ -124,3 +124,35 @@ def test_the_steps_sigma_carries_the_widths(fitted):
     assert abs(step - HEIGHT) <= 2.0 * sd
     (w_sd,) = gp.mean_.widths_sd_
     assert 0.0 < w_sd < 0.5 and abs(gp.mean_.widths_[0] - WIDTH) <= 2.5 * w_sd
+
+
+def test_the_step_at_its_own_width_is_the_maps_and_a_shared_width_reads_a_growth(fitted):
+    # terrain.breakline_change. Reference 1, the fit itself: at the width the map chose,
+    # step_at_width gives the map's own step, and GLS variance + J^2 var(log w) is the map's
+    # step variance (width_uncertainty's sum). Reference 2, a known change: the same ground
+    # surveyed again after the step grew 1 m (another noise and sample draw): the change at
+    # one shared width lies within 2 sd of +1 m with a 1-sigma below the two maps' combined.
+    from terrain.breakline_change import shared_width_change, step_at_width
+
+    gp, samples = fitted
+    k = gp.mean_.coef_names.index("step1_m")
+    w, sd = gp.mean_.widths_[0], gp.mean_.widths_sd_[0]
+    step, var, slope = step_at_width(gp, 0, w)
+    assert step == pytest.approx(gp.mean_.coef_[k], abs=1e-8)
+    assert var + slope**2 * (sd / w) ** 2 == pytest.approx(gp.mean_.coef_cov_[k, k], rel=1e-6)
+    site = default_site(resolution=2.0)
+    X, Y = np.meshgrid(site.x.values, site.y.values)
+    grown = site.copy(data=site.values + (HEIGHT + 1.0) * expit((Y - _line(X)) / WIDTH))
+    rng = np.random.default_rng(1)
+    xy = rng.uniform([X0 + 5, Y0 + 5], [X0 + 595, Y0 + 595], (1500, 2))
+    z = sample_dem(grown, xy) + rng.normal(0.0, 0.05, 1500)
+    after = ElevationSamples(xy, z, np.full(1500, 0.0025), crs=CRS)
+    u = np.linspace(X0 - 50, X0 + 650, 141)
+    gp_after = TerrainGP(seed=0, mean=BreaklineMean([np.column_stack([u, _line(u)])])).fit(after)
+    change = shared_width_change(gp, gp_after, 0)
+    assert abs(change["change_m"] - 1.0) <= 2.0 * change["change_sd_m"]
+    ka = gp_after.mean_.coef_names.index("step1_m")
+    independent = np.sqrt(gp.mean_.coef_cov_[k, k] + gp_after.mean_.coef_cov_[ka, ka])
+    assert change["change_sd_m"] < independent
+    lo, hi = sorted((w, gp_after.mean_.widths_[0]))
+    assert lo <= change["width_m"] <= hi

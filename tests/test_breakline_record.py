@@ -68,7 +68,12 @@ def test_a_step_change_for_the_same_line_with_comparable_steps():
     before = _epoch([(4.0, 0.3), (-2.5, 0.3)], [0.1, 0.2])
     after = _epoch([(4.5, 0.4), (-2.0, 0.3)], [0.1, 0.2], shift=1.0)
     one, two = step_changes(before, after)
-    assert one == {"line": 1, "change_m": pytest.approx(0.5), "change_sd_m": pytest.approx(0.5)}
+    assert one == {
+        "line": 1,
+        "change_m": pytest.approx(0.5),
+        "change_sd_m": pytest.approx(0.5),
+        "method": "each map at its own width, combined as independent",
+    }
     assert "change_m" not in two and "differs" in two["reason"]
     # moved by less than SAME_LINE_M: the same line
     after = _epoch([(4.5, 0.4), (-2.0, 0.3)], [0.1, 0.2], shift=0.5 * SAME_LINE_M)
@@ -86,6 +91,18 @@ def test_steps_whose_sigma_leaves_the_width_out_are_compared_only_at_one_width()
     # the same width given to both maps: comparable
     assert two["change_m"] == pytest.approx(0.5)
     assert two["change_sd_m"] == pytest.approx(0.3 * 2**0.5)
+    assert two["method"] == "the width given to both maps"
     # one map's width chosen, the other's given: not comparable
     after = _epoch([(4.5, 0.4), (-2.0, 0.3)], [0.1, None])
     assert "different widths" in step_changes(before, after)[0]["reason"]
+
+
+def test_without_the_maps_gps_the_changes_stay_independent():
+    # at_shared_width needs both GPs (the GP route): without them each change is kept as
+    # step_changes gave it; a row without a change (a moved line) is kept as it is
+    from toolkit.breakline_record import at_shared_width
+
+    before = _epoch([(4.0, 0.3), (-2.5, 0.3)], [0.1, 0.2])
+    after = _epoch([(4.5, 0.4), (-2.0, 0.3)], [0.1, 0.2], shift=1.0)
+    changes = step_changes(before, after)
+    assert at_shared_width(changes, before, after, None) == changes

@@ -303,10 +303,19 @@ def test_cli_gp_route_rebuilds_a_breakline_mean(breakline_epochs, tmp_path):
     assert [r["step_m"] for r in lines["before"]] == [rec_b.gp.mean_.coef_[2]]
     assert [r["step_m"] for r in lines["after"]] == [rec_a.gp.mean_.coef_[2]]
     assert [r["width_m"] for r in lines["after"]] == list(rec_a.gp.mean_.widths_)
-    # the same line in both maps, each step's 1-sigma with its width's: the change is given,
-    # and the unchanged 3 m step reads no change within 2 sd
+    # the same line in both maps, both widths chosen by the evidence, both GPs rebuilt: the
+    # change is read at one shared width (reference: the library on the in-memory GPs), the
+    # independent pair kept; the unchanged 3 m step reads no change within 2 sd
+    from terrain.breakline_change import shared_width_change
+
     (change,) = lines["step_changes"]
-    assert change["change_m"] == pytest.approx(rec_a.gp.mean_.coef_[2] - rec_b.gp.mean_.coef_[2])
+    ref = shared_width_change(rec_b.gp, rec_a.gp, 0)
+    assert change["method"] == "both maps at one shared width"
+    assert change["change_m"] == pytest.approx(ref["change_m"], abs=1e-3)
+    assert change["change_sd_m"] == pytest.approx(ref["change_sd_m"], rel=1e-2)
+    assert change["shared_width_m"] == pytest.approx(ref["width_m"], rel=1e-3)
+    indep = rec_a.gp.mean_.coef_[2] - rec_b.gp.mean_.coef_[2]
+    assert change["independent_change_m"] == pytest.approx(indep)
     assert abs(change["change_m"]) <= 2.0 * change["change_sd_m"]
     html = (out / "change_report.html").read_text()
     assert 'id="breaklines"' in html and 'id="step_changes"' in html

@@ -151,13 +151,16 @@ def _hypso_fig(rows: list[dict[str, float]]) -> dict[str, str]:
     return {"id": "fig-hypsometry", "src": _png(fig), "caption": cap}
 
 
-def epoch_breaklines(before_attrs: Mapping[str, Any], after_attrs: Mapping[str, Any]) -> dict:
+def epoch_breaklines(
+    before_attrs: Mapping[str, Any], after_attrs: Mapping[str, Any], models: Any = None
+) -> dict:
     """The breaklines each epoch's map was fitted with (:func:`toolkit.breakline_record.
     breakline_rows` of each product's attributes, vertices left out) and, per line of the
     before map, its step's change (``step_changes``: :func:`toolkit.breakline_record.
-    step_changes`, a change with its 1-sigma or the reason none is given); ``{}`` when
-    neither has lines."""
-    from .breakline_record import breakline_rows, step_changes
+    step_changes`, a change with its 1-sigma or the reason none is given; with both maps'
+    rebuilt GPs, ``models``, read at one shared width: :func:`toolkit.breakline_record.
+    at_shared_width`); ``{}`` when neither has lines."""
+    from .breakline_record import at_shared_width, breakline_rows, step_changes
 
     rows = {"before": breakline_rows(before_attrs), "after": breakline_rows(after_attrs)}
     if not rows["before"] and not rows["after"]:
@@ -165,7 +168,8 @@ def epoch_breaklines(before_attrs: Mapping[str, Any], after_attrs: Mapping[str, 
     out: dict[str, Any] = {
         k: [{n: v for n, v in r.items() if n != "vertices"} for r in rs] for k, rs in rows.items()
     }
-    out["step_changes"] = step_changes(rows["before"], rows["after"])
+    changes = step_changes(rows["before"], rows["after"])
+    out["step_changes"] = at_shared_width(changes, rows["before"], rows["after"], models)
     return out
 
 

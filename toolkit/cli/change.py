@@ -168,7 +168,7 @@ def change_command(
     note = f"{vc.details['method_note']}. Route {route_reason}"  # the HTML report shows it
     vc = dataclasses.replace(vc, details={**vc.details, "method_note": note})
     profile = hypsometric_profile(diff, glacier, band_sigma=band_sigma_from(vc, grid))
-    lines = epoch_breaklines(b.attrs, a.attrs)  # the cliffs each map was fitted with
+    lines = epoch_breaklines(b.attrs, a.attrs, models)  # the cliffs each map was fitted with
     out_dir = ensure_writable_dir(out)
     with staged_folder(out_dir) as tmp:
         write_change_cog(diff, tmp / FILES["cog"])
