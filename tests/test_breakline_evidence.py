@@ -25,20 +25,25 @@ def _line(x):
     return Y0 + 300.0 + 20.0 * np.sin((x - X0) / 90.0)
 
 
-@pytest.fixture(scope="module")
-def fitted():
-    """The default site with a sinuous 4 m step 1.5 m wide; 1,500 samples, 5 cm noise; the
-    default map with the line drawn (width "auto")."""
+def _survey(height: float, seed: int):
+    """The default site with a sinuous step ``height`` m high, 1.5 m wide; 1,500 samples,
+    5 cm noise (``seed``); the default map with the line drawn (width "auto")."""
     site = default_site(resolution=2.0)
     X, Y = np.meshgrid(site.x.values, site.y.values)
-    truth = site.copy(data=site.values + HEIGHT * expit((Y - _line(X)) / WIDTH))
-    rng = np.random.default_rng(0)
+    truth = site.copy(data=site.values + height * expit((Y - _line(X)) / WIDTH))
+    rng = np.random.default_rng(seed)
     xy = rng.uniform([X0 + 5, Y0 + 5], [X0 + 595, Y0 + 595], (1500, 2))
     z = sample_dem(truth, xy) + rng.normal(0.0, 0.05, 1500)
     samples = ElevationSamples(xy, z, np.full(1500, 0.0025), crs=CRS)
     u = np.linspace(X0 - 50, X0 + 650, 141)
     gp = TerrainGP(seed=0, mean=BreaklineMean([np.column_stack([u, _line(u)])])).fit(samples)
     return gp, samples
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    """The 4 m step, seed 0 (:func:`_survey`)."""
+    return _survey(HEIGHT, 0)
 
 
 def _refine(gp, samples, mean):
@@ -140,15 +145,7 @@ def test_the_step_at_its_own_width_is_the_maps_and_a_shared_width_reads_a_growth
     step, var, slope = step_at_width(gp, 0, w)
     assert step == pytest.approx(gp.mean_.coef_[k], abs=1e-8)
     assert var + slope**2 * (sd / w) ** 2 == pytest.approx(gp.mean_.coef_cov_[k, k], rel=1e-6)
-    site = default_site(resolution=2.0)
-    X, Y = np.meshgrid(site.x.values, site.y.values)
-    grown = site.copy(data=site.values + (HEIGHT + 1.0) * expit((Y - _line(X)) / WIDTH))
-    rng = np.random.default_rng(1)
-    xy = rng.uniform([X0 + 5, Y0 + 5], [X0 + 595, Y0 + 595], (1500, 2))
-    z = sample_dem(grown, xy) + rng.normal(0.0, 0.05, 1500)
-    after = ElevationSamples(xy, z, np.full(1500, 0.0025), crs=CRS)
-    u = np.linspace(X0 - 50, X0 + 650, 141)
-    gp_after = TerrainGP(seed=0, mean=BreaklineMean([np.column_stack([u, _line(u)])])).fit(after)
+    gp_after = _survey(HEIGHT + 1.0, 1)[0]
     change = shared_width_change(gp, gp_after, 0)
     assert abs(change["change_m"] - 1.0) <= 2.0 * change["change_sd_m"]
     ka = gp_after.mean_.coef_names.index("step1_m")
