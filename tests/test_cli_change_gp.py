@@ -218,6 +218,28 @@ def test_cli_falls_back_to_variogram_and_says_why(epochs, tmp_path):
     assert "does not reproduce the map" in vol["route_reason"]
 
 
+def test_a_stated_horizontal_sigma_is_said_to_be_outside_the_volumes(epochs, tmp_path):
+    # a map made with --horizontal-sd (digitised contours): its cells' dh 1-sigma carry it,
+    # the GP route's volume 1-sigma does not, and the change says so in words and in JSON
+    d, _, gpkg, *_ = epochs
+    contour = tmp_path / "before"
+    shutil.copytree(d / "before", contour)
+    ds = xr.open_dataset(contour / "product.nc").load()
+    ds.attrs["samples_horizontal_std_m"] = 10.0
+    (contour / "product.nc").unlink()
+    ds.to_netcdf(contour / "product.nc", engine="scipy")
+    out = tmp_path / "out"
+    res = runner.invoke(
+        app, ["change", str(contour), str(d / "after"), "--outline", str(gpkg), "--out", str(out)]
+    )
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    assert vol["route"] == "gp_structure"
+    (note,) = [n for n in vol["notes"] if "horizontal" in n]
+    assert "the before map's 10 m samples' horizontal 1-sigma" in note
+    assert "not in the volume's" in " ".join(res.output.split())
+
+
 def test_missing_samples_file_is_an_error(epochs, tmp_path):
     d, _, gpkg, *_ = epochs
     out = tmp_path / "out"

@@ -169,6 +169,7 @@ def change_command(
     vc = dataclasses.replace(vc, details={**vc.details, "method_note": note})
     profile = hypsometric_profile(diff, glacier, band_sigma=band_sigma_from(vc, grid))
     lines = epoch_breaklines(b.attrs, a.attrs, models)  # the cliffs each map was fitted with
+    horizontal = _horizontal_note(b.attrs, a.attrs, models is not None)
     out_dir = ensure_writable_dir(out)
     with staged_folder(out_dir) as tmp:
         write_change_cog(diff, tmp / FILES["cog"])
@@ -185,7 +186,7 @@ def change_command(
                 "samples_before": None if where_b.samples is None else str(where_b.samples),
                 "samples_after": None if where_a.samples is None else str(where_a.samples),
             },
-            "notes": [n for n in (note_o, note_s, diff.attrs["reprojection"]) if n],
+            "notes": [n for n in (note_o, note_s, diff.attrs["reprojection"], horizontal) if n],
             "coregistration": json.loads(diff.attrs["coregistration"])
             if diff.attrs["coregistration"] != "none"
             else None,
@@ -196,6 +197,8 @@ def change_command(
         write_volume_tables(vc, tmp / FILES["json"], tmp / FILES["csv"], **extra)
         write_change_report(tmp / FILES["report"], diff, vc, glacier, profile, breaklines=lines)
     console.print(f"route: {route} ({route_reason})")
+    if horizontal:
+        console.print(f"[yellow]note:[/] {horizontal}")
     for name, at in (vc.details.get("along_track") or {}).items():
         if isinstance(at, dict) and "status" in at:  # included, or said why not: never silent
             console.print(f"along-track term, {name}: {at['status']}")
@@ -206,6 +209,27 @@ def change_command(
     )
     console.print(
         f"wrote {', '.join(FILES.values())} in {out_dir} ({time.perf_counter() - t0:.1f} s)"
+    )
+
+
+def _horizontal_note(before: Any, after: Any, gp_route: bool) -> str:
+    """What the volume's 1-sigma leaves out when a map states its samples' horizontal
+    1-sigma (``glacimap reconstruct --horizontal-sd``: digitised contours); "" otherwise.
+    Each cell's dh 1-sigma carries it (the maps' ``elevation_std``); the GP route's volume
+    1-sigma integrates the GPs' covariance and does not (how a contour's shift correlates
+    along it is not modelled); the variogram route measures it on stable ground."""
+    stated = [
+        f"the {name} map's {float(attrs['samples_horizontal_std_m']):g} m"
+        for name, attrs in (("before", before), ("after", after))
+        if attrs.get("samples_horizontal_std_m")
+    ]
+    if not stated or not gp_route:
+        return ""
+    return (
+        f"{' and '.join(stated)} samples' horizontal 1-sigma (through the slope) is in each "
+        "cell's dh 1-sigma but not in the volume's on the GP route: its correlation along "
+        "the contours is not modelled; the variogram route (no --samples-*) measures it on "
+        "stable ground"
     )
 
 
