@@ -28,9 +28,7 @@ from typing import Any
 import numpy as np
 
 from .breakline_evidence import H_LOG
-from .gp_mean import GLS_MAX_SAMPLES, gls_coefficients
-from .linalg import cholesky_jitter
-from .radial_table import tabulate
+from .gp_mean import gls_coefficients, gls_subset, noise_factor
 
 __all__ = ["shared_width_change", "step_at_width"]
 
@@ -41,19 +39,13 @@ def step_at_width(gp: Any, line: int, width: float) -> tuple[float, float, float
     :class:`terrain.BreaklineMean`) with that line's width set to ``width`` (m), the other
     widths, the kernel and the noise as fitted; m, m^2, m. The GLS runs on the samples the
     fit's own GLS used: all of them on the exact route, an even subset of at most
-    ``GLS_MAX_SAMPLES`` on the tiled one."""
+    ``terrain.gp_mean.GLS_MAX_SAMPLES`` on the tiled one (``gls_subset``)."""
     samples = gp.samples_
     exact = getattr(gp, "method_", "") == "exact" and getattr(gp, "L_", None) is not None
-    idx = slice(None) if exact else np.arange(samples.n)[:: max(1, samples.n // GLS_MAX_SAMPLES)]
+    idx = slice(None) if exact else gls_subset(samples.n)  # as TerrainGP.fit's own GLS
     X, xy, z = gp.X_train_[idx], samples.xy[idx], samples.z[idx]
     noise = (gp.z_var_ + gp.nugget_)[idx]
-    if exact:
-        L = gp.L_
-    else:
-        reach = float(np.hypot(*np.ptp(X, axis=0))) if X.shape[0] else 0.0
-        K = (tabulate(gp.kernel_, reach) or gp.kernel_)(X)
-        K[np.diag_indices_from(K)] += noise
-        L, _ = cholesky_jitter(K, what="breakline step kernel matrix")
+    L = gp.L_ if exact else noise_factor(gp.kernel_, X, noise, "breakline step kernel matrix")
     mean = copy.copy(gp.mean_)
     k = mean.coef_names.index(f"step{line + 1}_m")
     out = []

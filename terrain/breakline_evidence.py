@@ -26,9 +26,7 @@ from scipy.optimize import minimize_scalar
 
 from .breakline import WIDTHS
 from .dem_reading import coarse_columns, reads_steps
-from .gp_mean import gls_coefficients
-from .linalg import cholesky_jitter
-from .radial_table import tabulate
+from .gp_mean import gls_coefficients, noise_factor
 
 __all__ = ["SPAN", "gls_mean", "width_uncertainty", "widths_by_evidence"]
 
@@ -59,10 +57,7 @@ def widths_by_evidence(
     if not refine and getattr(mean, "widths_sd_", None) is None:
         return mean, L
     if L is None:
-        reach = float(np.hypot(*np.ptp(X, axis=0))) if X.shape[0] else 0.0
-        K = (tabulate(kernel, reach) or kernel)(X)
-        K[np.diag_indices_from(K)] += noise_var
-        L, _ = cholesky_jitter(K, what="breakline width kernel matrix")
+        L = noise_factor(kernel, X, noise_var, "breakline width kernel matrix")
     wy = solve_triangular(L, z, lower=True, check_finite=False)
     # the basis as BreaklineMean.basis lays it, [base, S - read, hinges, read], with the
     # prior DEM's reading of the steps kept at the start's widths while the search runs: it

@@ -26,7 +26,7 @@ from .coarse_variance import predict_checked_lattice, variance_step
 from .errors import NotFittedError, bad_input
 from .exact_predict import predict_exact
 from .gp_hyper import HyperparameterMixin
-from .gp_mean import GLS_MAX_SAMPLES, bind_mean, n_coef
+from .gp_mean import bind_mean, gls_subset, n_coef
 from .gp_settings import check_samples, check_settings
 from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
@@ -320,8 +320,7 @@ class TerrainGP(HyperparameterMixin):
             # Tiled: no global factor. GLS coefficients of a linear mean on every k-th sample:
             # the samples' alone, so a rebuild at these hyperparameters gives the same mean.
             if n_coef(self.mean_):
-                sub = np.arange(samples.n)[:: max(1, samples.n // GLS_MAX_SAMPLES)]
-                self._set_coefficients(samples, idx=sub)
+                self._set_coefficients(samples, idx=gls_subset(samples.n))
             self.jitter_ = 0.0
             self.fit_seconds_ = time.perf_counter() - t0
             if getattr(self, "_vecchia_lml", None) is not None:

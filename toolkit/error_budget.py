@@ -215,12 +215,11 @@ def inflate_std(
     post = product["elevation_std"].values.ravel() ** 2
     w = lean_weight(post, prior)
     track = w * correlated_variance(q, landmark_xy, relative_z_std, k, landmark_t_s)
-    if shared_xy_std is not None:  # a sideways shift of the map, through the slope
-        gy, gx = np.gradient(product["elevation"].values, product["y"].values, product["x"].values)
-        sx, sy = (float(v) for v in shared_xy_std)
-        track = track + w * (gx.ravel() ** 2 * sx**2 + gy.ravel() ** 2 * sy**2)
-    if horizontal_sd:  # the samples' own horizontal error, through the slope
-        track = track + w * slope_squared(product).ravel() * float(horizontal_sd) ** 2
+    if shared_xy_std is not None or horizontal_sd:  # sideways errors, through the slope
+        gx, gy = (g.ravel() ** 2 for g in _slope(product))
+        sx, sy = (float(v) for v in shared_xy_std or (0.0, 0.0))
+        h2 = float(horizontal_sd or 0.0) ** 2  # the samples' own, not shared
+        track = track + w * (gx * (sx**2 + h2) + gy * (sy**2 + h2))
     added = track + (1.0 if shared_everywhere else w) * float(shared_z_std) ** 2
     out = product.copy()
     dims = product["elevation_std"].dims
@@ -257,10 +256,16 @@ def inflate_std(
     return out
 
 
-def slope_squared(product) -> np.ndarray:
-    """``|grad z|^2`` of ``product["elevation"]`` (y, x) by central differences in metres
-    (one-sided at the edges), shape of the grid; dimensionless."""
+def _slope(product) -> tuple[np.ndarray, np.ndarray]:
+    """``(dz/dx, dz/dy)`` of ``product["elevation"]`` (y, x) by central differences in
+    metres (one-sided at the edges), each the grid's shape; dimensionless."""
     gy, gx = np.gradient(product["elevation"].values, product["y"].values, product["x"].values)
+    return gx, gy
+
+
+def slope_squared(product) -> np.ndarray:
+    """``|grad z|^2`` of ``product["elevation"]``, the grid's shape (:func:`_slope`)."""
+    gx, gy = _slope(product)
     return gx**2 + gy**2
 
 
