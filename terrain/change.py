@@ -18,8 +18,9 @@ import numpy as np
 
 from .coregister import _elevation, warp_to
 from .coregister import coregister as _coregister
+from .dem_projection import change_crs, crs_label, finer, grid_in, raster_footprint
 from .errors import bad_input
-from .grid import Grid
+from .grid import Grid, north_up
 
 __all__ = ["PROVENANCE_KEYS", "difference"]
 
@@ -45,54 +46,63 @@ def _std(ds: Any):
     import xarray as xr
 
     if isinstance(ds, xr.Dataset) and "elevation_std" in ds:
-        from .grid import north_up
-
         return north_up(ds["elevation_std"].assign_attrs(ds.attrs))
     return None
 
 
-def _common_grid(gb: Grid, ga: Grid) -> tuple[Grid, str, str]:
-    """The finer grid cut to the overlap of both; which input is finer; reprojection note."""
+def _common_grid(eb: Any, ea: Any) -> tuple[Grid, str, str]:
+    """The finer grid cut to the overlap of both; which input is finer; reprojection note.
+
+    Inputs in degrees are allowed: the comparison runs in :func:`change_crs`'s projected CRS
+    (a geographic DEM that is the finer one gets GDAL's suggested cells there)."""
     from rasterio.warp import transform_bounds
 
-    fine, coarse, which = (gb, ga, "before") if _area(gb) <= _area(ga) else (ga, gb, "after")
+    fb, fa = raster_footprint(eb), raster_footprint(ea)
+    fine, coarse, which = finer(fb, fa)
+    crs, why = change_crs(eb, ea)
+    fine_grid = grid_in(fine, crs)
+    moved = [(k, fp) for k, fp in (("before", fb), ("after", fa)) if not _same_crs(fp, crs)]
+    note = "; ".join(
+        f"{k} reprojected from {crs_label(fp.crs)} to {crs_label(crs)} (rasterio, bilinear"
+        + (f"; {fp.describe()}" if fp.crs.is_geographic else "")
+        + ")"
+        for k, fp in moved
+    )
+    note = note or "same CRS"
+    if any(fp.crs.is_geographic for _, fp in moved):
+        note += f"; compared in {why}"
     cb = coarse.bounds
-    note = "same CRS"
-    if not coarse.crs.equals(fine.crs, ignore_axis_order=True):
-        cb = transform_bounds(coarse.crs.to_wkt(), fine.crs.to_wkt(), *cb, densify_pts=21)
-        note = (
-            f"{'after' if which == 'before' else 'before'} reprojected from "
-            f"{coarse.crs.to_string()} to {fine.crs.to_string()} (rasterio, bilinear)"
-        )
-    w, s, e, n = fine.bounds
+    if not _same_crs(coarse, crs):
+        cb = transform_bounds(coarse.crs.to_wkt(), crs.to_wkt(), *cb, densify_pts=21)
+    w, s, e, n = fine_grid.bounds
     w2, s2, e2, n2 = max(w, cb[0]), max(s, cb[1]), min(e, cb[2]), min(n, cb[3])
-    dx, dy = fine.resolution
+    dx, dy = fine_grid.resolution
     j0, j1 = int(np.ceil((w2 - w) / dx - 1e-9)), int(np.floor((e2 - w) / dx + 1e-9))
     i0, i1 = int(np.ceil((n - n2) / dy - 1e-9)), int(np.floor((n - s2) / dy + 1e-9))
     if j1 - j0 < 2 or i1 - i0 < 2:
         raise bad_input(
             "before/after",
-            f"bounds {tuple(round(b, 1) for b in fine.bounds)} and "
-            f"{tuple(round(b, 1) for b in cb)} ({fine.crs.to_string()})",
+            f"bounds {tuple(round(b, 1) for b in fine_grid.bounds)} and "
+            f"{tuple(round(b, 1) for b in cb)} ({crs_label(crs)})",
             "two DEMs that overlap by at least 2 x 2 cells",
             "check that both DEMs cover the same ground (and their CRS)",
         )
-    grid = Grid(w + j0 * dx, n - i0 * dy, (dx, dy), (i1 - i0, j1 - j0), fine.crs)
+    grid = Grid(w + j0 * dx, n - i0 * dy, (dx, dy), (i1 - i0, j1 - j0), crs)
     return grid, which, note
 
 
-def _area(g: Grid) -> float:
-    return g.resolution[0] * g.resolution[1]
+def _same_crs(fp: Any, crs: Any) -> bool:
+    return fp.crs.equals(crs, ignore_axis_order=True)
 
 
 def _on_grid(da: Any, grid: Grid) -> np.ndarray:
     """``da`` on ``grid``: sliced when it lies on the same lattice, else reprojected."""
-    g = Grid.from_dataarray(da)
+    g = raster_footprint(da)
     dx, dy = grid.resolution
     j = (grid.west - g.west) / dx
     i = (g.north - grid.north) / dy
     same = (
-        g.crs.equals(grid.crs, ignore_axis_order=True)
+        _same_crs(g, grid.crs)
         and np.allclose(g.resolution, grid.resolution, rtol=1e-9)
         and abs(j - round(j)) < 1e-6
         and abs(i - round(i)) < 1e-6
@@ -166,8 +176,7 @@ def difference(
             "pass outline= (stable = outside it) or stable=, or coregister=False",
         )
     eb, ea = _elevation(before, "before"), _elevation(after, "after")
-    gb, ga = Grid.from_dataarray(eb), Grid.from_dataarray(ea)
-    grid, which, note = _common_grid(gb, ga)
+    grid, which, note = _common_grid(eb, ea)
     zb, za = _on_grid(eb, grid), _on_grid(ea, grid)
     sb, sa = _std(before), _std(after)
     coreg_json = "none"

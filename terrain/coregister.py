@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from .dem_projection import raster_footprint
 from .errors import bad_input
 from .grid import Grid, dataarray_crs, north_up
 
@@ -100,7 +101,7 @@ def warp_to(da: Any, grid: Grid, resampling: str = "cubic") -> np.ndarray:
     from rasterio.warp import reproject
 
     src = _elevation(da, "dem")
-    sg = Grid.from_dataarray(src)
+    sg = raster_footprint(src)  # any CRS, degrees included
     out = np.full(grid.shape, np.nan)
     reproject(
         np.asarray(src.values, float),

@@ -26,6 +26,7 @@ import numpy as np
 
 from survey import standards
 from terrain.atomic import atomic_path
+from terrain.dem_projection import in_metres
 from terrain.errors import InputError, bad_input
 from terrain.metrics import interval_coverage, standardized_error_stats
 from terrain.validation import CrossValidation
@@ -149,6 +150,17 @@ def _dropped_warning(n_total: int, n_used: int, *masks: np.ndarray) -> str | Non
         f"{n_total - n_used} of {n_total} checkpoints were not scored ({why}): the certificate "
         f"rests on {n_used}; check the checkpoints' CRS and the map's extent"
     )
+
+
+def _geographic_note(g: Any) -> dict[str, str]:
+    """How a DEM in degrees was certified (nothing for a projected one)."""
+    if not g.crs.is_geographic:
+        return {}
+    _, why = in_metres(np.zeros((1, 2)) + g.bounds[:2], g)
+    return {
+        "geographic_note": "sampled bilinearly on its own longitude/latitude cells (not "
+        f"warped); resolution_m at its centre; checkpoint distances in {why}"
+    }
 
 
 def place_checkpoints(
@@ -294,7 +306,9 @@ def certify(
         "p95_abs_error_m": float(np.percentile(np.abs(err), 95)),
         "accuracy_95_m": standards.accuracy_95(rmse, "nssda"),
         "rmse_with_checkpoint_error_m": standards.combined_rmse_with_checkpoints(rmse, cp_rmse),
-        "bias_assessment": bias_assessment(err, xy[used], _stated_shared_std(raster.provenance)),
+        "bias_assessment": bias_assessment(
+            err, in_metres(xy[used], raster.grid)[0], _stated_shared_std(raster.provenance)
+        ),
     }
 
     finest = {
@@ -308,7 +322,12 @@ def certify(
         how = "finest ASPRS 1990 Class 1 interval, rounded up to a conventional one"
     else:
         ci, how = float(contour_interval_m), "given"
-    area_km2 = (lambda b: (b[2] - b[0]) * (b[3] - b[1]) / 1e6)(raster.grid.bounds)
+    g = raster.grid  # a Footprint for a DEM in degrees: its area on the ground
+    area_km2 = (
+        g.area_km2()
+        if g.crs.is_geographic
+        else (lambda b: (b[2] - b[0]) * (b[3] - b[1]) / 1e6)(g.bounds)
+    )
     verdicts = standards.verdicts(
         rmse, ci, cp_rmse, n_checkpoints=n, feature=feature, area_km2=area_km2
     )
@@ -338,17 +357,17 @@ def certify(
                 "mean_sigma_m": float(s.mean()),
             }
     counts, edges = np.histogram(err, bins=min(30, max(5, int(np.sqrt(n)))))
-    g = raster.grid
     cert = {
         "schema": SCHEMA,
         "dem": {
             **raster.source,
             "crs": g.crs.to_string(),
             "shape": list(g.shape),
-            "resolution_m": list(g.resolution),
+            "resolution_m": list(g.ground_resolution() if g.crs.is_geographic else g.resolution),
             "bounds": list(g.bounds),
             "area_km2": area_km2,
             "has_std_band": raster.elevation_std is not None,
+            **_geographic_note(g),
             "vertical_datum": raster.provenance.get("vertical_datum", "not stated by the DEM"),
             "provenance": raster.provenance,
         },

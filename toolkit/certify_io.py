@@ -24,6 +24,7 @@ from pyproj import CRS
 
 from factorgraph.field.table import header_key, read_text_table, sidecar_crs
 from terrain import Grid
+from terrain.dem_projection import Footprint, dem_lattice, raster_footprint
 from terrain.errors import bad_input
 from terrain.grid import check_same_crs, north_up
 
@@ -340,8 +341,9 @@ class DemRaster:
 
     Attributes
     ----------
-    grid : terrain.Grid
-        North-up raster definition (cell centres, projected CRS, metres).
+    grid : terrain.Grid or terrain.dem_projection.Footprint
+        North-up raster definition (cell centres): a Grid in a projected CRS (metres), a
+        Footprint in a geographic one (degrees).
     elevation : ndarray of shape grid.shape
         Elevation, metres; NaN on nodata.
     elevation_std : ndarray of shape grid.shape or None
@@ -352,7 +354,7 @@ class DemRaster:
         Non-georeferencing attributes / tags (seed, method, kernel, ...).
     """
 
-    grid: Grid
+    grid: Grid | Footprint
     elevation: np.ndarray
     elevation_std: np.ndarray | None
     source: dict[str, Any]
@@ -387,7 +389,8 @@ def _from_xarray(obj: Any, source: dict[str, Any]) -> DemRaster:
         raise bad_input("DEM dims", tuple(elev.dims), "('y', 'x')", "ds.transpose('y', 'x')")
     obj, elev = north_up(obj), north_up(elev)  # rows north first, as the grid's
     std = None if std is None else north_up(std)
-    grid = Grid.from_dataarray(obj)
+    fp = raster_footprint(obj)  # a DEM in degrees is certified on its own cells
+    grid = fp if fp.crs.is_geographic else Grid.from_dataarray(obj)
     z = np.asarray(elev.values, dtype=float)
     s = None if std is None else np.asarray(std.values, dtype=float)
     if source.get("sha256") is None:
@@ -418,13 +421,13 @@ def _from_geotiff(path: Path, source: dict[str, Any]) -> DemRaster:
             raise bad_input(
                 "DEM crs",
                 path.name,
-                "a GeoTIFF with a projected CRS",
+                "a GeoTIFF with a CRS",
                 "assign one, e.g. gdal_edit.py -a_srs EPSG:32608 DEM.tif",
             )
         t = src.transform
         if t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
             raise bad_input("DEM transform", tuple(t)[:6], "north-up, no rotation", "gdalwarp it")
-        grid = Grid(t.c, t.f, (t.a, -t.e), (src.height, src.width), src.crs.to_wkt())
+        grid = dem_lattice(t, (src.height, src.width), src.crs)  # degrees allowed
 
         def band(i: int) -> np.ndarray:
             return np.ma.filled(src.read(i, masked=True).astype(float), np.nan)
@@ -446,8 +449,8 @@ def read_dem(dem: Any) -> DemRaster:
     Raises
     ------
     terrain.errors.InputError
-        Missing file, unknown extension, a GeoTIFF without CRS or not north-up, a geographic
-        CRS, a Dataset without ``elevation``.
+        Missing file, unknown extension, a GeoTIFF without CRS or not north-up, a Dataset
+        without ``elevation``. A DEM in degrees (SRTM, GLO-30) is read on its own cells.
     """
     if not isinstance(dem, str | os.PathLike):
         return _from_xarray(dem, {"kind": "dataset", "name": type(dem).__name__, "sha256": None})

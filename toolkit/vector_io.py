@@ -52,7 +52,6 @@ def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]
     """
     import shapely
     from pyproj import CRS, Transformer
-    from shapely.ops import transform
 
     path = Path(path)
     if not path.is_file():
@@ -97,5 +96,5 @@ def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]
     if declared.equals(target, ignore_axis_order=True):
         return geoms, f"{field}: same CRS{left}"
     t = Transformer.from_crs(declared, target, always_xy=True)
-    geoms = [transform(t.transform, g) for g in geoms]
+    geoms = [shapely.transform(g, t.transform, interleaved=False) for g in geoms]
     return geoms, f"{field}: reprojected from {declared.to_string()}{left}"

@@ -52,10 +52,17 @@ def read_dem(path: Path, field: str):
         raise bad_input(field, str(path), "a raster GDAL can read", str(exc)) from exc
     if crs is None or t.b != 0 or t.d != 0 or t.e >= 0:
         raise bad_input(field, str(path), "a north-up raster with a CRS", "warp it first")
-    grid = Grid(t.c, t.f, (t.a, -t.e), bands.shape[1:], crs.to_wkt())
     data = {"elevation": (("y", "x"), bands[0])}
     if "elevation_std" in desc:
         data["elevation_std"] = (("y", "x"), bands[desc.index("elevation_std")])
+    if crs.is_geographic:  # SRTM, GLO-30...: terrain.difference compares the two in metres
+        ny, nx = bands.shape[1:]
+        y, x = t.f + (np.arange(ny) + 0.5) * t.e, t.c + (np.arange(nx) + 0.5) * t.a
+        attrs = {"crs_wkt": crs.to_wkt(), "crs": crs.to_string(), "resolution": (t.a, -t.e)}
+        return xr.Dataset(
+            data, coords={"y": y, "x": x}, attrs={**tags, **attrs, "source": str(path)}
+        )
+    grid = Grid(t.c, t.f, (t.a, -t.e), bands.shape[1:], crs.to_wkt())
     attrs = {**tags, **grid.attrs(), "source": str(path)}
     return xr.Dataset(data, coords=grid.coords(), attrs=attrs)
 
@@ -127,6 +134,7 @@ def change_command(
     import shapely
 
     from terrain import difference, volume_change
+    from terrain.dem_projection import change_crs
 
     from ..change_inputs import locate_product
     from ..change_report import (
@@ -144,7 +152,7 @@ def change_command(
     where_a = locate_product(after, samples_after, "AFTER")
     b = read_dem(where_b.raster, "BEFORE")
     a = read_dem(where_a.raster, "AFTER")
-    crs = b.attrs["crs_wkt"]
+    crs, _ = change_crs(b, a)  # the CRS dh is mapped in (a DEM in degrees is projected)
     glacier, note_o = read_polygons(outline, "--outline", crs)
     stable_geom, note_s = (None, "")
     if stable is not None:
