@@ -85,21 +85,12 @@ def samples_table(sel: LandmarkSelection) -> dict[str, np.ndarray]:
     along-track correlation of :mod:`terrain.along_track`). It is the table ``glacimap
     reconstruct SAMPLES.csv`` and ``glacimap change`` read, so the chained commands give the
     same 1-sigma as ``glacimap run`` / ``process``."""
+    from .samples_io import SampleTable, sample_columns
+
     s, kept = sel.samples, sel.table["kept"]
     track = sel.table["z_std_m"][kept] if kept.sum() == s.n else np.sqrt(s.z_var)
     shared = float(sel.shared_offset_std_m[2])
-    out = {
-        "x": s.xy[:, 0],
-        "y": s.xy[:, 1],
-        "z": s.z,
-        "z_var": s.z_var,
-        "track_z_std_m": track,  # relative vertical 1-sigma: the along-track error term
-        "shared_offset_std_m": np.full(s.n, shared),
-    }
-    if "t_s" in s.extra:  # optional: a selection made before observation times were kept
-        out["t_s"] = np.asarray(s.extra["t_s"], float)
-    out["crs"] = np.full(s.n, s.crs.to_string() if s.crs is not None else "")  # never guessed
-    return out
+    return sample_columns(SampleTable(s, track, shared, ""))
 
 
 def write_csv(path: Path, table: dict[str, np.ndarray]) -> Path:

@@ -17,7 +17,7 @@ from terrain.grid import utm_crs
 
 from .certify_io import read_checkpoints
 
-__all__ = ["SampleTable", "grid_like", "read_samples"]
+__all__ = ["SampleTable", "grid_like", "read_samples", "sample_columns"]
 
 #: Optional columns of a samples table (what ``glacimap localize`` / ``process`` write).
 OPTIONAL = ("z_var", "track_z_std_m", "shared_offset_std_m", "t_s")
@@ -74,21 +74,37 @@ def _degree_like(xy: np.ndarray) -> bool:
     return xy.size > 0 and bool((np.abs(xy[:, 0]) <= 180).all() and (np.abs(xy[:, 1]) <= 90).all())
 
 
-def read_samples(path: str | Path, crs: Any = None) -> SampleTable:
+def read_samples(
+    path: str | Path, crs: Any = None, antenna_height_m: float | None = None
+) -> SampleTable:
     """Read ``x, y, z[, z_var, track_z_std_m, shared_offset_std_m, t_s]`` (aliases as for
     checkpoints: easting/northing/elevation, lon/lat/height...). ``t_s`` (each sample's mean
     observation time, s) goes into the samples' ``extra["t_s"]``: the along-track term of
     :func:`terrain.volume_change` needs it; a file without it still reads (the term is then
-    stated as not available).
+    stated as not available). A GNSS log (NMEA, GPX, RTKLIB ``.pos``) is read as its fixes
+    (:func:`toolkit.gnss_samples.read_gnss_samples`, less ``antenna_height_m``).
 
     Raises
     ------
     InputError
-        No file, missing columns, no CRS anywhere (pass ``--crs``), non-finite values.
+        No file, missing columns, no CRS anywhere (pass ``--crs``), non-finite values; an
+        antenna height for a CSV (its z is the surface's).
     """
+    from .gnss_samples import gnss_format, read_gnss_samples
+
     path = Path(path)
     if not path.is_file():
-        raise bad_input("SAMPLES", str(path), "an existing CSV file", "check the path")
+        raise bad_input("SAMPLES", str(path), "an existing CSV or GNSS file", "check the path")
+    if gnss_format(path) is not None:
+        samples, track, note = read_gnss_samples(path, crs, antenna_height_m or 0.0)
+        return SampleTable(samples, track, 0.0, note)
+    if antenna_height_m is not None:
+        raise bad_input(
+            "--antenna-height",
+            antenna_height_m,
+            "a GNSS log (NMEA, GPX, RTKLIB .pos) as SAMPLES: a CSV's z is the surface's",
+            f"subtract the antenna height in {path.name}, or drop --antenna-height",
+        )
     table = read_checkpoints(path, crs=crs)
     if table.crs is None:
         raise bad_input(
@@ -278,3 +294,21 @@ def grid_like(path: str | Path, table: SampleTable) -> tuple[Any, SampleTable, s
         )
     out = SampleTable(samples, table.track_z_std, table.shared_z_std, table.note)
     return grid, out, note
+
+
+def sample_columns(table: SampleTable) -> dict[str, np.ndarray]:
+    """``table`` as the columns :func:`read_samples` reads back (``x, y, z, z_var,
+    track_z_std_m, shared_offset_std_m[, t_s], crs``), as ``glacimap localize`` writes them."""
+    s = table.samples
+    out = {
+        "x": s.xy[:, 0],
+        "y": s.xy[:, 1],
+        "z": s.z,
+        "z_var": s.z_var,
+        "track_z_std_m": np.asarray(table.track_z_std, float),
+        "shared_offset_std_m": np.full(s.n, float(table.shared_z_std)),
+    }
+    if "t_s" in s.extra:
+        out["t_s"] = np.asarray(s.extra["t_s"], float)
+    out["crs"] = np.full(s.n, s.crs.to_string() if s.crs is not None else "")  # never guessed
+    return out

@@ -57,7 +57,8 @@ def reconstruct(
     samples: Annotated[
         Path | None,
         typer.Argument(
-            help="CSV: x, y, z[, z_var, track_z_std_m, shared_offset_std_m] (aliases allowed)."
+            help="CSV: x, y, z[, z_var, track_z_std_m, shared_offset_std_m] (aliases "
+            "allowed); or a GNSS log of the survey (NMEA, GPX, RTKLIB .pos)."
         ),
     ] = None,
     demo: Annotated[bool, typer.Option(help="Run on the embedded default site.")] = False,
@@ -116,6 +117,14 @@ def reconstruct(
             "slope joins the 1-sigma and the held-out check. Default: none.",
         ),
     ] = None,
+    antenna_height: Annotated[
+        float | None,
+        typer.Option(
+            "--antenna-height",
+            help="GNSS log as SAMPLES: the antenna's height above the surface, m "
+            "(subtracted from every fix).",
+        ),
+    ] = None,
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
@@ -123,6 +132,8 @@ def reconstruct(
     Delaunay) on the default 600 m x 600 m site. With a CSV: the same model and products as
     glacimap run / process (kernel by evidence, the prior DEM's offset fitted, total and
     relative 1-sigma, COG, contours, mesh; a certificate and report with --checkpoints).
+    A GNSS log (a kinematic profile) is read as its fixes, projected to --crs or their UTM
+    zone; the samples it gave are written as samples.csv beside the map.
     """
     if demo == (samples is not None):
         raise bad_input(
@@ -166,6 +177,7 @@ def reconstruct(
             config,
             lines,
             horizontal_sd,
+            antenna_height,
         )
 
 
@@ -191,7 +203,7 @@ def _file(lines: Any) -> Any:
 
 def _reconstruct_csv(
     samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None,
-    horizontal_sd=None,
+    horizontal_sd=None, antenna_height=None,
 ):  # fmt: skip
     import warnings
 
@@ -199,10 +211,11 @@ def _reconstruct_csv(
 
     from ..config import load_scenario
     from ..export._files import previous_products, remove_stale, staged_folder
+    from ..gnss_samples import gnss_format
     from ..processing import prior_mean
-    from ..products import write_map_products
+    from ..products import write_csv, write_map_products
     from ..provenance import input_record
-    from ..samples_io import grid_like, read_samples
+    from ..samples_io import grid_like, read_samples, sample_columns
     from ..stages import certify_stage, map_grid, reconstruct_stage
 
     settings = load_scenario(cfg, overrides)
@@ -212,7 +225,7 @@ def _reconstruct_csv(
         given = scenario_lines(settings)
         lines = given if given[0] is not None else None
     seed = int(overrides["seed"])
-    table = read_samples(samples, crs)
+    table = read_samples(samples, crs, antenna_height)
     if table.note:
         console.print(f"[yellow]note:[/] {escape(str(table.note))}")
     if like is not None:  # the raster's own cells; samples projected into its CRS if need be
@@ -302,6 +315,8 @@ def _reconstruct_csv(
     before = previous_products(out_dir, SUMMARY)
     with staged_folder(out_dir) as tmp:
         write_map_products(tmp, rec, cert, settings)
+        if gnss_format(samples) is not None:  # the samples a log gave: change reads them
+            write_csv(tmp / "samples.csv", sample_columns(table))
         written = sorted([p.name for p in tmp.iterdir()] + [SUMMARY])
         summary = {"seed": seed, "samples": data.n, "grid": list(grid.shape), "products": written}
         with atomic_path(tmp / SUMMARY) as path:

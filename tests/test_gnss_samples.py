@@ -1,0 +1,182 @@
+"""A GNSS survey's own file as the map's samples (``toolkit.gnss_samples``, ``glacimap
+reconstruct profile.gpx``).
+
+The logs are written here with independent writers: GPX by ``gpxpy``, NMEA sentences by
+``pynmea2`` (its own checksums), an RTKLIB ``.pos`` by hand after RTKLIB 2.4.3's output
+format. References: positions projected by ``pyproj`` directly, heights by hand (ellipsoidal
+height minus the antenna height), the kinds' UERE from ``factorgraph.field.fixes``.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+
+import gpxpy
+import gpxpy.gpx
+import numpy as np
+import pandas as pd
+import pynmea2
+import pytest
+import xarray as xr
+from pyproj import Transformer
+from typer.testing import CliRunner
+
+from factorgraph.field.fixes import UERE_M, VERTICAL_FACTOR
+from terrain import InputError
+from toolkit.cli import app
+from toolkit.gnss_samples import gnss_format, read_gnss_samples
+from toolkit.samples_io import read_samples
+
+UTM = "EPSG:32608"
+T0 = dt.datetime(2026, 7, 1, 9, 0, 0, tzinfo=dt.UTC)
+TO_LL = Transformer.from_crs(UTM, "EPSG:4326", always_xy=True)
+runner = CliRunner()
+
+
+def _surface(x, y):
+    """A tilted plane with a bump (m, UTM 8N)."""
+    return (
+        1200.0
+        + 0.05 * (x - 500_000)
+        + 8.0 * np.exp(-((x - 500_150) ** 2 + (y - 6_600_150) ** 2) / 80.0**2)
+    )
+
+
+def _profile(n_lines=4, step=3.0, spacing=100.0, length=300.0):
+    """A boustrophedon of north-south lines (UTM 8N, m) at 1 fix per ``step`` m."""
+    pts = []
+    for i in range(n_lines):
+        y = 6_600_000 + np.arange(0.0, length, step)
+        pts.append(
+            np.column_stack([np.full(y.size, 500_000 + i * spacing), y if i % 2 == 0 else y[::-1]])
+        )
+    return np.vstack(pts)
+
+
+def _gpx(path, xy, h, hdop=None, vdop=None):
+    lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
+    g = gpxpy.gpx.GPX()
+    trk = gpxpy.gpx.GPXTrack()
+    seg = gpxpy.gpx.GPXTrackSegment()
+    g.tracks.append(trk)
+    trk.segments.append(seg)
+    for k in range(len(h)):
+        p = gpxpy.gpx.GPXTrackPoint(
+            lat[k], lon[k], elevation=h[k], time=T0 + dt.timedelta(seconds=k)
+        )
+        p.type_of_gpx_fix = "3d"
+        p.horizontal_dilution, p.vertical_dilution = hdop, vdop
+        seg.points.append(p)
+    path.write_text(g.to_xml())
+    return path
+
+
+def _pos(path, xy, h, q, sdu):
+    """RTKLIB 2.4.3 llh output, GPST (UTC + 18 s)."""
+    lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
+    lines = [
+        "% program   : RTKLIB ver.2.4.3",
+        "%  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   "
+        "sde(m)   sdu(m)  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio",
+    ]
+    for k in range(len(h)):
+        t = T0 + dt.timedelta(seconds=k + 18)
+        lines.append(
+            f"{t:%Y/%m/%d %H:%M:%S}.000 {lat[k]:14.9f} {lon[k]:14.9f} {h[k]:10.4f} {q[k]:3d}  12"
+            f"   0.0100   0.0100 {sdu[k]:8.4f}   0.0000   0.0000   0.0000   1.00   50.0"
+        )
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_rtklib_fixes_become_samples_in_the_map_crs(tmp_path):
+    xy = _profile(n_lines=2, step=10.0)
+    h = _surface(*xy.T) + 2.0
+    q = np.where(np.arange(len(h)) % 5 == 0, 2, 1)  # every 5th an RTK float
+    sdu = np.where(q == 1, 0.02, 0.25)
+    s, track, note = read_gnss_samples(_pos(tmp_path / "p.pos", xy, h, q, sdu), UTM, 2.0)
+    assert str(s.crs.to_epsg()) == "32608" and s.n == len(h)
+    np.testing.assert_allclose(s.xy, xy, atol=2e-3)  # 1e-9 deg in the file: ~0.1 mm
+    np.testing.assert_allclose(s.z, h - 2.0, atol=1e-4)
+    np.testing.assert_allclose(s.z_var, sdu**2, rtol=1e-6)
+    np.testing.assert_allclose(track, np.where(q == 1, 0.0, sdu), rtol=1e-6)  # fixed: independent
+    np.testing.assert_allclose(s.extra["t_s"], np.arange(len(h)), atol=1e-6)
+    assert "rtk_fixed 48" in note and "rtk_float 12" in note and "antenna height 2 m" in note
+
+
+def test_gpx_without_dop_takes_the_kinds_uere_and_its_utm_zone(tmp_path):
+    xy = _profile(n_lines=1, step=10.0)
+    h = _surface(*xy.T)
+    s, track, note = read_gnss_samples(_gpx(tmp_path / "t.gpx", xy, h))
+    sigma = VERTICAL_FACTOR * UERE_M["single"]
+    np.testing.assert_allclose(s.z_var, sigma**2)
+    np.testing.assert_allclose(track, sigma)  # autonomous: its error wanders in time
+    assert s.crs.to_epsg() == 32608  # 135 W: UTM zone 8 north, chosen and said
+    assert "the fixes' UTM zone" in note and f"{len(h)} fixes state no vertical 1-sigma" in note
+    assert "none given: --antenna-height" in note
+    # with DOPs: UERE x VDOP
+    s2, _, _ = read_gnss_samples(_gpx(tmp_path / "d.gpx", xy, h, 0.8, 1.4), UTM)
+    np.testing.assert_allclose(s2.z_var, (UERE_M["single"] * 1.4) ** 2)
+
+
+def test_nmea_without_a_date_reads_relative_times(tmp_path):
+    xy = _profile(n_lines=1, step=30.0)
+    lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
+    h = _surface(*xy.T)
+    rows = []
+    for k in range(len(h)):
+        t = T0 + dt.timedelta(seconds=k)
+        la, lo = abs(lat[k]), abs(lon[k])
+        msg = pynmea2.GGA(
+            "GP", "GGA",
+            (f"{t:%H%M%S}.00", f"{int(la):02d}{(la % 1) * 60:010.7f}", "N" if lat[k] > 0 else "S",
+             f"{int(lo):03d}{(lo % 1) * 60:010.7f}", "E" if lon[k] > 0 else "W", "4", "12", "0.7",
+             f"{h[k] - 10.0:.3f}", "M", "10.000", "M", "1.0", "0000"),
+        )  # fmt: skip
+        rows.append(str(msg))
+    path = tmp_path / "log.nmea"
+    path.write_text("\n".join(rows) + "\n")
+    s, track, note = read_gnss_samples(path, UTM, 1.5)
+    np.testing.assert_allclose(s.z, h - 1.5, atol=2e-3)  # altitude + geoid separation - antenna
+    np.testing.assert_allclose(s.xy, xy, atol=0.01)
+    np.testing.assert_allclose(s.extra["t_s"], np.arange(len(h)))
+    assert "no UTC date in the log" in note and np.all(track == 0.0)  # quality 4: RTK fixed
+    np.testing.assert_allclose(s.z_var, (VERTICAL_FACTOR * UERE_M["rtk_fixed"] * 0.7) ** 2)
+
+
+def test_bad_input_names_the_field(tmp_path):
+    xy = _profile(n_lines=1, step=50.0)
+    gpx = _gpx(tmp_path / "t.gpx", xy, _surface(*xy.T))
+    with pytest.raises(InputError, match="--antenna-height"):
+        read_gnss_samples(gpx, UTM, -1.0)
+    with pytest.raises(InputError, match="--crs"):
+        read_gnss_samples(gpx, "EPSG:4326")  # a map needs metres
+    csv = tmp_path / "s.csv"
+    pd.DataFrame({"x": xy[:, 0], "y": xy[:, 1], "z": 1.0, "crs": UTM}).to_csv(csv, index=False)
+    with pytest.raises(InputError, match="--antenna-height.*a CSV's z is the surface's"):
+        read_samples(csv, antenna_height_m=1.8)
+    assert gnss_format(csv) is None and gnss_format(gpx) == "gpx"
+    assert read_samples(gpx, UTM, 0.5).samples.n == len(xy)
+
+
+def test_cli_maps_a_gpx_profile_and_writes_its_samples(tmp_path):
+    xy = _profile()
+    rng = np.random.default_rng(0)
+    h = _surface(*xy.T) + 1.8 + rng.normal(0, 0.02, len(xy))
+    gpx = _gpx(tmp_path / "profile.gpx", xy, h, 0.01, 0.01)  # 2.5 cm x 0.01: precise fixes
+    out = tmp_path / "map"
+    r = runner.invoke(
+        app, ["reconstruct", str(gpx), "--antenna-height", "1.8", "--crs", UTM, "--resolution",
+              "10", "--out", str(out)],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    assert "profile.gpx: gpx log, 400 fixes" in " ".join(r.output.split())
+    back = pd.read_csv(out / "samples.csv")
+    assert len(back) == len(xy) and set(back["crs"]) == {UTM}
+    np.testing.assert_allclose(back["z"], h - 1.8, atol=1e-9)
+    ds = xr.open_dataset(out / "product.nc")
+    xx, yy = np.meshgrid(ds["x"].values, ds["y"].values)
+    inside = (xx > 500_010) & (xx < 500_290) & (yy > 6_600_010) & (yy < 6_600_290)
+    err = (ds["elevation"].values - _surface(xx, yy))[inside]
+    assert abs(float(np.mean(err))) < 0.3  # the antenna taken off: no 1.8 m offset
+    assert float(np.sqrt(np.mean(err**2))) < 1.0

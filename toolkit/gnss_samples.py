@@ -1,0 +1,175 @@
+"""A GNSS survey's own file as the map's samples: ``glacimap reconstruct profile.gpx``.
+
+Glaciologists' most common elevation survey is a kinematic GNSS profile: a receiver on a
+sled, a snowmobile or a backpack logging NMEA 0183, GPX or an RTKLIB solution (``.pos``) over
+the ice. Each fix is a sample of the surface: its ellipsoidal height minus the antenna's
+height above the snow, at its position projected to the map's CRS (the ``--crs`` given, else
+the UTM zone of the fixes' median, said in the note; never guessed silently).
+
+The fixes' 1-sigma is the file's own (RTKLIB ``sdu``, NMEA GST, GPX / NMEA DOP through the
+solution kind's UERE, :mod:`factorgraph.field.fixes`); a fix whose file states none takes
+its kind's UERE times :data:`~factorgraph.field.fixes.VERTICAL_FACTOR`, counted in the note.
+The error of every kind but an RTK fixed solution wanders in time (multipath, ionosphere,
+orbits): those fixes carry it as the along-track term of the map's 1-sigma
+(``track_z_std_m`` = the fix's vertical 1-sigma, with its time ``t_s``: the same model as a
+rover's landmarks, :mod:`toolkit.error_budget`); RTK fixed heights are independent spot
+heights. Fixes a reader cannot use are counted by reason, never dropped silently.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from terrain import ElevationSamples
+from terrain.errors import InputError, bad_input
+from terrain.grid import as_crs, utm_crs
+
+__all__ = ["GNSS_SUFFIXES", "INDEPENDENT_KINDS", "gnss_format", "read_gnss_samples"]
+
+#: File suffixes read as GNSS logs (others are sniffed: NMEA loggers write .txt / .log).
+GNSS_SUFFIXES = {".gpx": "gpx", ".nmea": "nmea", ".nma": "nmea", ".pos": "rtklib"}
+#: Solution kinds whose height errors are taken as independent between fixes.
+INDEPENDENT_KINDS = frozenset({"rtk_fixed"})
+#: The date given to an NMEA log without RMC / ZDA sentences: only relative times are used.
+_NO_DATE = "2000-01-01"
+
+
+def gnss_format(path: str | Path) -> str | None:
+    """``"nmea"``, ``"gpx"`` or ``"rtklib"`` for a GNSS log (by suffix, else by its first
+    kilobytes), ``None`` for anything else (a CSV of samples)."""
+    from factorgraph.field.reader import sniff_gps_format
+
+    path = Path(path)
+    if path.suffix.lower() in GNSS_SUFFIXES:
+        return GNSS_SUFFIXES[path.suffix.lower()]
+    if path.suffix.lower() in (".csv", ".tsv", ".parquet"):
+        return None
+    return sniff_gps_format(path) if path.is_file() else None
+
+
+def _read(path: Path, fmt: str) -> tuple[Any, str]:
+    from factorgraph.field.gpx import read_gpx
+    from factorgraph.field.nmea import read_nmea
+    from factorgraph.field.rtklib import read_rtklib
+
+    if fmt == "gpx":
+        return read_gpx(path), ""
+    if fmt == "rtklib":
+        return read_rtklib(path), ""
+    try:
+        return read_nmea(path), ""
+    except InputError as exc:  # GGA without RMC / ZDA: the map needs relative times only
+        if f"{path.name} date" not in str(exc):
+            raise
+        return read_nmea(
+            path, date=_NO_DATE
+        ), "no UTC date in the log (no RMC / ZDA): times relative"
+
+
+def _map_crs(lon: np.ndarray, lat: np.ndarray, crs: Any) -> tuple[Any, str]:
+    if crs is not None:
+        out = as_crs(crs, "--crs")
+        return out, f"projected to {out.to_string()} (--crs)"
+    lon0, lat0 = float(np.median(lon)), float(np.median(lat))
+    out = utm_crs(lon0, lat0)
+    if out is None:
+        raise bad_input(
+            "GNSS fixes",
+            f"median lon {lon0:.3f}, lat {lat0:.3f}",
+            "a site inside UTM's latitudes (80 S - 84 N) to be projected to its zone",
+            "pass --crs EPSG:3413 (north) or EPSG:3031 (south), polar stereographic",
+        )
+    return out, f"projected to {out.to_string()} ({out.name}: the fixes' UTM zone)"
+
+
+def read_gnss_samples(
+    path: str | Path, crs: Any = None, antenna_height_m: float = 0.0
+) -> tuple[ElevationSamples, np.ndarray, str]:
+    """The surface samples of a GNSS log.
+
+    Parameters
+    ----------
+    path : path
+        NMEA 0183 (GGA, with RMC / ZDA for the date and GST for 1-sigmas), GPX 1.0 / 1.1
+        (``trkpt`` with ``ele`` and ``time``) or an RTKLIB ``.pos`` solution.
+    crs : str or pyproj.CRS, optional
+        Projected CRS of the map; default the UTM zone of the fixes' median position.
+    antenna_height_m : float
+        Height of the antenna's phase centre above the surface, m (subtracted from every
+        fix's ellipsoidal height).
+
+    Returns
+    -------
+    samples : ElevationSamples
+        ``x, y`` in the map's CRS (m), ``z`` = ellipsoidal height - antenna height (m),
+        ``z_var`` the fix's vertical variance (m^2), ``extra["t_s"]`` seconds since the first
+        fix.
+    track_z_std : ndarray of shape (n,)
+        The along-track 1-sigma (m): the vertical 1-sigma of fixes whose error wanders in
+        time, 0 for RTK fixed ones.
+    note : str
+        What was read, counted, assumed and projected, in words.
+
+    Raises
+    ------
+    InputError
+        Not a GNSS log, no usable fix, a geographic or unknown ``crs``, a negative or
+        non-finite antenna height.
+    """
+    from pyproj import Transformer
+
+    from factorgraph.field.fixes import UERE_M, VERTICAL_FACTOR
+
+    path = Path(path)
+    if not (math.isfinite(antenna_height_m) and antenna_height_m >= 0):
+        raise bad_input(
+            "--antenna-height",
+            antenna_height_m,
+            "the antenna's height above the surface, m (>= 0)",
+            "measure it from the snow to the antenna's reference point, e.g. 1.8",
+        )
+    fmt = gnss_format(path)
+    if fmt is None:
+        raise bad_input(str(path.name), "not a GNSS log", "NMEA, GPX or RTKLIB .pos", "")
+    fixes, date_note = _read(path, fmt)
+    up = np.asarray(fixes.sigma[:, 2], float)
+    kinds = np.asarray(fixes.quality).astype(str)
+    unstated = ~(np.isfinite(up) & (up > 0))
+    up = np.where(unstated, [VERTICAL_FACTOR * UERE_M.get(k, UERE_M["single"]) for k in kinds], up)
+    map_crs, crs_note = _map_crs(fixes.lon_deg, fixes.lat_deg, crs)
+    tr = Transformer.from_crs("EPSG:4326", map_crs, always_xy=True)
+    x, y = tr.transform(fixes.lon_deg, fixes.lat_deg)
+    z = np.asarray(fixes.h_m, float) - antenna_height_m
+    t = np.asarray(fixes.utc_s, float) - float(fixes.utc_s[0])
+    samples = ElevationSamples(
+        np.column_stack([x, y]), z, up**2, crs=map_crs.to_string(), extra={"t_s": t}
+    )
+    wander = np.array([k not in INDEPENDENT_KINDS for k in kinds])
+    track = np.where(wander, up, 0.0)
+    if samples.n != z.size:  # fixes at one position (a receiver standing still) merged
+        track = np.where(np.any(wander), np.sqrt(samples.z_var), 0.0)
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(Counter(kinds.tolist()).items()))
+    skipped = {k: v for k, v in fixes.skipped.items() if v}
+    parts = [
+        f"{path.name}: {fmt} log, {z.size} fixes over {t[-1] / 60:.1f} min ({counts})",
+        f"{sum(skipped.values())} records not used {skipped}" if skipped else "",
+        f"heights: ellipsoidal minus the antenna height {antenna_height_m:g} m"
+        + ("" if antenna_height_m > 0 else " (none given: --antenna-height)"),
+        f"{int(unstated.sum())} fixes state no vertical 1-sigma: their kind's UERE x "
+        f"{VERTICAL_FACTOR:g}"
+        if unstated.any()
+        else "",
+        f"{int(wander.sum())} fixes' errors wander in time (all but RTK fixed): the along-track "
+        "term of the map's 1-sigma"
+        if wander.any()
+        else "RTK fixed heights: independent spot heights",
+        crs_note,
+        date_note,
+        f"{z.size - samples.n} fixes at a repeated position merged" if samples.n != z.size else "",
+    ]
+    return samples, np.asarray(track, float), "; ".join(p for p in parts if p)
