@@ -27,6 +27,7 @@ from scipy.optimize import minimize_scalar
 from .breakline import WIDTHS
 from .dem_reading import coarse_columns, reads_steps
 from .gp_mean import gls_coefficients, noise_factor
+from .prior_scale import checked_scale
 
 __all__ = ["SPAN", "gls_mean", "width_uncertainty", "widths_by_evidence"]
 
@@ -129,9 +130,17 @@ def gls_mean(
 ) -> tuple[Any, np.ndarray, np.ndarray]:  # fmt: skip
     """``(mean, beta_hat, cov)``: a linear mean's widths refined by the evidence
     (:func:`widths_by_evidence`; breaklines only) and its GLS coefficients at ``kernel``
-    (:func:`terrain.gp_mean.gls_coefficients`, R&W Eq 2.42), one factor for both."""
+    (:func:`terrain.gp_mean.gls_coefficients`, R&W Eq 2.42), one factor for both. A DEM's
+    ``a + b * DEM`` has its GLS scale checked against least squares
+    (:func:`terrain.prior_scale.checked_scale`; the record in ``mean.scale_check_``)."""
     mean, L = widths_by_evidence(mean, kernel, X, xy, z, noise_var, L)
     H = np.asarray(mean.basis(xy), dtype=float)
+    if getattr(mean, "coef_names", None) == ("offset_m", "scale"):  # a + b * DEM: b checked
+        if L is None:
+            L = noise_factor(kernel, X, noise_var, "GLS mean kernel matrix")
+        mean = copy.copy(mean)
+        beta, cov, mean.scale_check_ = checked_scale(H, z, L)  # terrain.prior_scale
+        return mean, beta, cov
     beta, cov = gls_coefficients(kernel, X, z, noise_var, H, L)
     extra = getattr(mean, "width_cov_", None)
     if extra is not None and extra.shape == cov.shape:

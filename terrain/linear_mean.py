@@ -190,7 +190,13 @@ class OffsetScaleMean:
             return f"offset={self.offset!r}"
         if self.coef_ is None:
             return "offset='fit' (not fitted)"
-        return format_coefficients(self.coef_names, self.coef_, self.coef_cov_)
+        text = format_coefficients(self.coef_names, self.coef_, self.coef_cov_)
+        check = getattr(self, "scale_check_", None) or {}
+        if check.get("used") == "ols":  # terrain.prior_scale: the GLS scale was rejected
+            text += (
+                f", scale by least squares (GLS {check['b_gls']:.3g}; Hausman z {check['z']:.1f})"
+            )
+        return text
 
 
 def check_coefficients(mean: Any, beta: Any, cov: Any) -> tuple[np.ndarray, np.ndarray]:

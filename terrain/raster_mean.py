@@ -443,6 +443,8 @@ class RasterMean(OffsetScaleMean):
             }
         if self.coef_ is not None:
             out["coefficients"] = coefficient_table(self.coef_names, self.coef_, self.coef_cov_)
+        if getattr(self, "scale_check_", None) is not None:  # terrain.prior_scale
+            out["scale_check"] = dict(self.scale_check_)
         return out
 
     def __repr__(self) -> str:

@@ -206,6 +206,8 @@ def reconstruct_stage(
             landmark_t_s = samples.extra.get("t_s")
     from terrain.gp_mean import n_coef
 
+    scale_note = (getattr(gp.mean_, "scale_check_", None) or {}).get("note")
+    prior_note = "; ".join(n for n in (prior_note, scale_note) if n) or None
     fitted_offset = n_coef(gp.mean_) > 0  # the prior's datum offset is fitted to the samples
     product = inflate_std(
         gp.predict_grid(grid),
