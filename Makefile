@@ -46,6 +46,7 @@ bench: setup
 	$(BIN)/python benchmarks/marginals_order.py --out benchmarks/results/marginals_order.json
 	$(BIN)/python benchmarks/breakline_steps.py --out benchmarks/results/breakline_steps.json
 	$(BIN)/python benchmarks/real_contours.py --out benchmarks/results/real_contours.json
+	$(BIN)/python benchmarks/profile_prior.py --out benchmarks/results/profile_prior.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache
