@@ -135,13 +135,18 @@ def gls_mean(
     (:func:`terrain.prior_scale.checked_scale`; the record in ``mean.scale_check_``)."""
     mean, L = widths_by_evidence(mean, kernel, X, xy, z, noise_var, L)
     H = np.asarray(mean.basis(xy), dtype=float)
-    if getattr(mean, "coef_names", None) == ("offset_m", "scale"):  # a + b * DEM: b checked
+    names = tuple(getattr(mean, "coef_names", ()))
+    if "scale" in names:  # a + b * DEM (a breakline's base too): b checked
         if L is None:
             L = noise_factor(kernel, X, noise_var, "GLS mean kernel matrix")
         mean = copy.copy(mean)
-        beta, cov, mean.scale_check_ = checked_scale(H, z, L)  # terrain.prior_scale
-        return mean, beta, cov
-    beta, cov = gls_coefficients(kernel, X, z, noise_var, H, L)
+        j = names.index("scale")
+        beta, cov, mean.scale_check_ = checked_scale(H, z, L, j)  # terrain.prior_scale
+        if getattr(mean, "base", None) is not None:  # a breakline's base states it too
+            mean.base = copy.copy(mean.base)
+            mean.base.scale_check_ = mean.scale_check_
+    else:
+        beta, cov = gls_coefficients(kernel, X, z, noise_var, H, L)
     extra = getattr(mean, "width_cov_", None)
     if extra is not None and extra.shape == cov.shape:
         cov = cov + extra  # the widths' own uncertainty (width_uncertainty)

@@ -38,28 +38,31 @@ HAUSMAN_Z = 3.29
 
 
 def checked_scale(
-    H: np.ndarray, z: np.ndarray, L: np.ndarray
+    H: np.ndarray, z: np.ndarray, L: np.ndarray, j: int = 1
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """Coefficients ``(a, b)`` of ``a + b * DEM`` and their covariance, the scale checked.
+    """Coefficients of a linear mean with a DEM's scale and their covariance, the scale checked.
 
     Parameters
     ----------
-    H : ndarray of shape (n, 2)
-        The basis ``[1, DEM(x)]`` at the samples (m).
+    H : ndarray of shape (n, p)
+        The basis at the samples: ``[1, DEM(x)]`` for ``a + b * DEM``, followed by a
+        breakline's columns for a :class:`terrain.BreaklineMean` on such a base (m).
     z : ndarray of shape (n,)
         Sample elevations, m.
     L : ndarray of shape (n, n)
         Lower Cholesky factor of the kernel matrix plus noise at the samples, m^2.
+    j : int
+        The column of the DEM's scale ``b``.
 
     Returns
     -------
-    beta : ndarray of shape (2,)
-        ``(a, b)``: GLS (R&W Eq 2.42) unless the check rejects it, then ``b`` by OLS and
-        ``a`` by GLS given ``b``.
-    cov : ndarray of shape (2, 2)
+    beta : ndarray of shape (p,)
+        GLS (R&W Eq 2.42) unless the check rejects its scale, then ``b`` by OLS and the
+        other coefficients by GLS given ``b``.
+    cov : ndarray of shape (p, p)
     record : dict
-        ``b_gls``, ``sd_gls``, ``b_ols``, ``sd_ols``, ``z`` (Hausman), ``used`` (``"gls"`` or
-        ``"ols"``), ``note`` (words).
+        ``b_gls``, ``sd_gls``, ``b_ols``, ``sd_ols``, ``z`` (Hausman), ``threshold``,
+        ``used`` (``"gls"`` or ``"ols"``), ``note`` (words; empty when GLS is kept).
     """
     W = solve_triangular(L, H, lower=True, check_finite=False)  # L^-1 H
     wz = solve_triangular(L, z, lower=True, check_finite=False)
@@ -70,29 +73,35 @@ def checked_scale(
     beta_o = hth_inv @ (H.T @ z)
     KH = L @ (L.T @ H)  # K H
     cov_o = hth_inv @ (H.T @ KH) @ hth_inv  # the sandwich: OLS under the kernel's covariance
-    diff_var = cov_o[1, 1] - cov_g[1, 1]
-    z_h = float((beta_o[1] - beta_g[1]) / np.sqrt(diff_var if diff_var > 0 else cov_o[1, 1]))
+    diff_var = cov_o[j, j] - cov_g[j, j]
+    z_h = float((beta_o[j] - beta_g[j]) / np.sqrt(diff_var if diff_var > 0 else cov_o[j, j]))
     record = {
-        "b_gls": float(beta_g[1]),
-        "sd_gls": float(np.sqrt(cov_g[1, 1])),
-        "b_ols": float(beta_o[1]),
-        "sd_ols": float(np.sqrt(cov_o[1, 1])),
+        "b_gls": float(beta_g[j]),
+        "sd_gls": float(np.sqrt(cov_g[j, j])),
+        "b_ols": float(beta_o[j]),
+        "sd_ols": float(np.sqrt(cov_o[j, j])),
         "z": z_h,
         "threshold": HAUSMAN_Z,
     }
     if abs(z_h) <= HAUSMAN_Z:
         return beta_g, cov_g, {**record, "used": "gls", "note": ""}
-    # b by OLS (consistent), a by GLS given b (R&W Eq 2.42 with the one column of ones)
-    b, v_b = float(beta_o[1]), float(cov_o[1, 1])
-    v_a = 1.0 / A[0, 0]
-    a = v_a * float(W[:, 0] @ (wz - b * W[:, 1]))
-    J = -A[0, 1] / A[0, 0]  # da/db
-    cov = np.array([[v_a + J * J * v_b, J * v_b], [J * v_b, v_b]])
+    # b by OLS (consistent); the others by GLS given b (R&W Eq 2.42 on the other columns)
+    b, v_b = float(beta_o[j]), float(cov_o[j, j])
+    o = np.array([i for i in range(H.shape[1]) if i != j])
+    v_oo = np.linalg.inv(A[np.ix_(o, o)])
+    beta = np.empty(H.shape[1])
+    beta[o] = v_oo @ (W[:, o].T @ (wz - b * W[:, j]))
+    beta[j] = b
+    J = -v_oo @ A[o, j]  # d(others) / db
+    cov = np.empty_like(A)
+    cov[np.ix_(o, o)] = v_oo + np.outer(J, J) * v_b
+    cov[o, j] = cov[j, o] = J * v_b
+    cov[j, j] = v_b
     note = (
-        f"the prior DEM's scale by generalised least squares ({beta_g[1]:.3f} +- "
+        f"the prior DEM's scale by generalised least squares ({beta_g[j]:.3f} +- "
         f"{record['sd_gls']:.3f}) disagrees with the samples' own regression on the DEM "
         f"({b:.3f} +- {record['sd_ols']:.3f}; Hausman z = {z_h:.1f}, beyond {HAUSMAN_Z}): the "
         "kernel does not describe what the DEM lacks, so the regression's scale is used and "
         "its 1-sigma carried"
     )
-    return np.array([a, b]), cov, {**record, "used": "ols", "note": note}
+    return beta, cov, {**record, "used": "ols", "note": note}

@@ -98,3 +98,28 @@ def test_terrain_gp_records_the_check_and_reads_the_rejected_dem_at_its_regressi
     smooth = g.data_array(_smooth(q).reshape(g.shape), "elevation")  # a DEM the ground agrees with
     gp2 = TerrainGP(mean=RasterMean(smooth), kernel=SquaredExponential(0.5, 15.0), optimize=False)
     assert gp2.fit(samples).mean_.scale_check_["used"] == "gls"
+
+
+def test_a_breaklines_columns_are_estimated_given_the_rejected_scale():
+    rng = np.random.default_rng(3)
+    xy = _lines()
+    K = _K(xy, 15.0, 0.5, 0.01)
+    step = (xy[:, 1] > 100.0).astype(float)  # a 2 m step across the lines
+    ground = _smooth(xy) + 2.0 * step + np.linalg.cholesky(K) @ rng.standard_normal(len(xy))
+    dem = _smooth(xy) + 1.5 * np.sin(2 * np.pi * xy[:, 1] / 12.0)
+    H = np.column_stack([np.ones(len(xy)), dem, step])  # as BreaklineMean lays it: base, steps
+    z = 3.0 + ground
+    beta, cov, rec = checked_scale(H, z, np.linalg.cholesky(K), j=1)
+    assert rec["used"] == "ols"
+    Ki = np.linalg.inv(K)
+    o = [0, 2]
+    b, v_b = rec["b_ols"], rec["sd_ols"] ** 2
+    Ho = H[:, o]
+    v_oo = np.linalg.inv(Ho.T @ Ki @ Ho)
+    rest = v_oo @ Ho.T @ Ki @ (z - b * dem)  # GLS of z - b DEM on [1, step]
+    J = -v_oo @ Ho.T @ Ki @ dem
+    np.testing.assert_allclose(beta[o], rest, rtol=1e-8)
+    assert beta[1] == b  # the regression's scale, the step by GLS given it (hand formula above)
+    np.testing.assert_allclose(cov[np.ix_(o, o)], v_oo + np.outer(J, J) * v_b, rtol=1e-8)
+    np.testing.assert_allclose(cov[o, 1], J * v_b, rtol=1e-8)
+    assert cov[1, 1] == pytest.approx(v_b)
