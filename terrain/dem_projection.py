@@ -25,7 +25,7 @@ from affine import Affine
 from pyproj import CRS
 
 from .errors import bad_input
-from .grid import Grid, _attr_resolution, _coord, _spacing, dataarray_crs, utm_crs
+from .grid import Grid, Lattice, _attr_resolution, _coord, _spacing, dataarray_crs, utm_crs
 
 __all__ = [
     "Footprint",
@@ -44,8 +44,9 @@ POLAR_NORTH, POLAR_SOUTH = 3413, 3031
 
 
 @dataclass(frozen=True)
-class Footprint:
-    """A north-up raster lattice in any CRS (a :class:`Grid` without the projected rule).
+class Footprint(Lattice):
+    """A north-up raster lattice in any CRS (a :class:`Grid` without the projected rule;
+    ``bounds``, ``transform``, ``x``, ``y``, ``contains`` from :class:`terrain.grid.Lattice`).
 
     Parameters
     ----------
@@ -63,18 +64,6 @@ class Footprint:
     resolution: tuple[float, float]
     shape: tuple[int, int]
     crs: CRS
-
-    @property
-    def bounds(self) -> tuple[float, float, float, float]:
-        """``(west, south, east, north)``, CRS units."""
-        dx, dy = self.resolution
-        ny, nx = self.shape
-        return (self.west, self.north - ny * dy, self.west + nx * dx, self.north)
-
-    @property
-    def transform(self) -> Affine:
-        dx, dy = self.resolution
-        return Affine(dx, 0.0, self.west, 0.0, -dy, self.north)
 
     def centre_lonlat(self) -> tuple[float, float]:
         """The footprint's centre in WGS 84 longitude, latitude (degrees)."""
@@ -100,30 +89,6 @@ class Footprint:
         ew = geod.inv(lon - dx / 2, lat, lon + dx / 2, lat)[2]
         ns = geod.inv(lon, lat - dy / 2, lon, lat + dy / 2)[2]
         return float(ew), float(ns)
-
-    @property
-    def ny(self) -> int:
-        return self.shape[0]
-
-    @property
-    def nx(self) -> int:
-        return self.shape[1]
-
-    @property
-    def x(self) -> np.ndarray:
-        """Cell-centre x (longitude for a geographic CRS), west to east."""
-        return self.west + (np.arange(self.nx) + 0.5) * self.resolution[0]
-
-    @property
-    def y(self) -> np.ndarray:
-        """Cell-centre y (latitude for a geographic CRS), north to south."""
-        return self.north - (np.arange(self.ny) + 0.5) * self.resolution[1]
-
-    def contains(self, xy: np.ndarray) -> np.ndarray:
-        """Boolean mask, shape (n,): which points (this CRS) lie inside the outer cell edges."""
-        w, s, e, n = self.bounds
-        xy = np.asarray(xy, float)
-        return (xy[:, 0] >= w) & (xy[:, 0] <= e) & (xy[:, 1] >= s) & (xy[:, 1] <= n)
 
     def area_km2(self) -> float:
         """The footprint's area on the ground, km^2 (geodesic on WGS 84 for degrees)."""

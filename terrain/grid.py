@@ -182,8 +182,55 @@ def north_up(da: Any) -> Any:
     return da
 
 
+class Lattice:
+    """A north-up lattice's geometry from ``west``, ``north``, ``resolution`` (dx, dy) and
+    ``shape`` (ny, nx), in its CRS's units (metres for a :class:`Grid`; degrees for a
+    :class:`terrain.dem_projection.Footprint` in longitude / latitude)."""
+
+    west: float
+    north: float
+    resolution: tuple[float, float]
+    shape: tuple[int, int]
+
+    @property
+    def nx(self) -> int:
+        return self.shape[1]
+
+    @property
+    def ny(self) -> int:
+        return self.shape[0]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(west, south, east, north)`` of the outer cell edges."""
+        dx, dy = self.resolution
+        return (self.west, self.north - dy * self.ny, self.west + dx * self.nx, self.north)
+
+    @property
+    def transform(self) -> Affine:
+        """Affine transform of cell corners, as rasterio's ``from_origin(west, north, dx, dy)``."""
+        dx, dy = self.resolution
+        return Affine(dx, 0.0, self.west, 0.0, -dy, self.north)
+
+    @property
+    def x(self) -> np.ndarray:
+        """x of the cell centres, shape (nx,), increasing."""
+        return self.west + self.resolution[0] * (np.arange(self.nx) + 0.5)
+
+    @property
+    def y(self) -> np.ndarray:
+        """y of the cell centres, shape (ny,), decreasing (row 0 is north)."""
+        return self.north - self.resolution[1] * (np.arange(self.ny) + 0.5)
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        """Boolean mask, shape (n,): which points lie inside the outer cell edges."""
+        w, s, e, n = self.bounds
+        xy = np.asarray(xy, float)
+        return (xy[:, 0] >= w) & (xy[:, 0] <= e) & (xy[:, 1] >= s) & (xy[:, 1] <= n)
+
+
 @dataclass(frozen=True)
-class Grid:
+class Grid(Lattice):
     """A north-up raster definition.
 
     Parameters
@@ -278,39 +325,9 @@ class Grid:
 
     # -- geometry -----------------------------------------------------------------------
     @property
-    def nx(self) -> int:
-        return self.shape[1]
-
-    @property
-    def ny(self) -> int:
-        return self.shape[0]
-
-    @property
     def size(self) -> int:
         """Number of cells."""
         return self.shape[0] * self.shape[1]
-
-    @property
-    def bounds(self) -> tuple[float, float, float, float]:
-        """``(west, south, east, north)`` of the outer cell edges, metres."""
-        dx, dy = self.resolution
-        return (self.west, self.north - dy * self.ny, self.west + dx * self.nx, self.north)
-
-    @property
-    def transform(self) -> Affine:
-        """Affine transform of cell corners, as rasterio's ``from_origin(west, north, dx, dy)``."""
-        dx, dy = self.resolution
-        return Affine(dx, 0.0, self.west, 0.0, -dy, self.north)
-
-    @property
-    def x(self) -> np.ndarray:
-        """Eastings of the cell centres, shape (nx,), increasing."""
-        return self.west + self.resolution[0] * (np.arange(self.nx) + 0.5)
-
-    @property
-    def y(self) -> np.ndarray:
-        """Northings of the cell centres, shape (ny,), decreasing (row 0 is north)."""
-        return self.north - self.resolution[1] * (np.arange(self.ny) + 0.5)
 
     def xy(self) -> np.ndarray:
         """All cell centres, shape (ny * nx, 2), row-major (C order), easting/northing in m."""
@@ -404,9 +421,3 @@ class Grid:
             raise bad_input("cells", cells, "(ny, nx) >= 1", "e.g. cells=(8, 8)")
         w, s, e, n = self.bounds
         return Grid(w, n, ((e - w) / nx, (n - s) / ny), (ny, nx), self.crs)
-
-    def contains(self, xy: np.ndarray) -> np.ndarray:
-        """Boolean mask, shape (n,): which points lie inside the outer cell edges."""
-        w, s, e, n = self.bounds
-        xy = np.asarray(xy, float)
-        return (xy[:, 0] >= w) & (xy[:, 0] <= e) & (xy[:, 1] >= s) & (xy[:, 1] <= n)
