@@ -180,3 +180,14 @@ def test_cli_maps_a_gpx_profile_and_writes_its_samples(tmp_path):
     err = (ds["elevation"].values - _surface(xx, yy))[inside]
     assert abs(float(np.mean(err))) < 0.3  # the antenna taken off: no 1.8 m offset
     assert float(np.sqrt(np.mean(err**2))) < 1.0
+
+
+def test_a_track_without_heights_and_a_receiver_standing_still(tmp_path):
+    xy = _profile(n_lines=1, step=10.0)
+    flat = _gpx(tmp_path / "flat.gpx", xy, [None] * len(xy))  # a 2-D track: no <ele>
+    with pytest.raises(InputError, match="flat.gpx.*no usable position record.*<ele>"):
+        read_gnss_samples(flat, UTM)
+    still = np.vstack([xy[:1].repeat(20, axis=0), xy])  # 20 s on the first point first
+    s, track, note = read_gnss_samples(_gpx(tmp_path / "s.gpx", still, _surface(*still.T)), UTM)
+    assert s.n == len(xy) and track.shape == (s.n,)  # the 21 fixes at one point: one sample
+    assert "20 fixes at a repeated position merged" in note
