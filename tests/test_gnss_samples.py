@@ -100,7 +100,7 @@ def test_rtklib_fixes_become_samples_in_the_map_crs(tmp_path):
     np.testing.assert_allclose(s.z, h - 2.0, atol=1e-4)
     np.testing.assert_allclose(s.z_var, sdu**2, rtol=1e-6)
     np.testing.assert_allclose(track, np.where(q == 1, 0.0, sdu), rtol=1e-6)  # fixed: independent
-    np.testing.assert_allclose(s.extra["t_s"], np.arange(len(h)), atol=1e-6)
+    np.testing.assert_allclose(s.extra["t_s"] - T0.timestamp(), np.arange(len(h)), atol=1e-6)
     assert "rtk_fixed 48" in note and "rtk_float 12" in note and "antenna height 2 m" in note
 
 
@@ -139,7 +139,7 @@ def test_nmea_without_a_date_reads_relative_times(tmp_path):
     s, track, note = read_gnss_samples(path, UTM, 1.5)
     np.testing.assert_allclose(s.z, h - 1.5, atol=2e-3)  # altitude + geoid separation - antenna
     np.testing.assert_allclose(s.xy, xy, atol=0.01)
-    np.testing.assert_allclose(s.extra["t_s"], np.arange(len(h)))
+    np.testing.assert_allclose(np.diff(s.extra["t_s"]), 1.0)  # UTC of the placeholder day
     assert "no UTC date in the log" in note and np.all(track == 0.0)  # quality 4: RTK fixed
     np.testing.assert_allclose(s.z_var, (VERTICAL_FACTOR * UERE_M["rtk_fixed"] * 0.7) ** 2)
 
@@ -191,3 +191,31 @@ def test_a_track_without_heights_and_a_receiver_standing_still(tmp_path):
     s, track, note = read_gnss_samples(_gpx(tmp_path / "s.gpx", still, _surface(*still.T)), UTM)
     assert s.n == len(xy) and track.shape == (s.n,)  # the 21 fixes at one point: one sample
     assert "20 fixes at a repeated position merged" in note
+
+
+def test_several_days_of_logs_are_one_survey(tmp_path):
+    xy = _profile(n_lines=2, step=10.0)
+    h = _surface(*xy.T) + 1.8
+    day1 = _gpx(tmp_path / "day1.gpx", xy[:30], h[:30], 0.01, 0.01)
+    q = np.ones(len(xy) - 30, int)
+    day2 = _pos(tmp_path / "day2.pos", xy[30:], h[30:], q, np.full(len(q), 0.02))
+    from toolkit.samples_io import read_sample_files
+
+    t = read_sample_files([day1, day2], None, 1.8)
+    assert t.samples.n == len(xy) and t.samples.crs.to_epsg() == 32608  # the first's UTM zone
+    np.testing.assert_allclose(t.samples.z, h - 1.8, atol=1e-4)
+    np.testing.assert_allclose(t.samples.xy, xy, atol=2e-3)
+    assert np.all(t.track_z_std[30:] == 0.0) and np.all(t.track_z_std[:30] > 0)  # RTK fixed
+    assert "2 files, 60 samples, in EPSG:32608" in t.note
+    csv = tmp_path / "spots.csv"
+    pd.DataFrame({"x": xy[:5, 0] + 0.5, "y": xy[:5, 1], "z": h[:5], "crs": "EPSG:32609"}).to_csv(
+        csv, index=False
+    )
+    with pytest.raises(Exception, match="EPSG:32609|32608"):  # a file in another CRS
+        read_sample_files([day1, csv], None, None)
+    r = runner.invoke(
+        app, ["reconstruct", str(day1), str(day2), "--antenna-height", "1.8", "--resolution",
+              "20", "--out", str(tmp_path / "m")],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    assert len(pd.read_csv(tmp_path / "m" / "samples.csv")) == len(xy)

@@ -74,7 +74,7 @@ def _read(path: Path, fmt: str) -> tuple[Any, str]:
 def _map_crs(lon: np.ndarray, lat: np.ndarray, crs: Any) -> tuple[Any, str]:
     if crs is not None:
         out = as_crs(crs, "--crs")
-        return out, f"projected to {out.to_string()} (--crs)"
+        return out, f"projected to {out.to_string()} (the CRS given)"
     lon0, lat0 = float(np.median(lon)), float(np.median(lat))
     out = utm_crs(lon0, lat0)
     if out is None:
@@ -107,8 +107,8 @@ def read_gnss_samples(
     -------
     samples : ElevationSamples
         ``x, y`` in the map's CRS (m), ``z`` = ellipsoidal height - antenna height (m),
-        ``z_var`` the fix's vertical variance (m^2), ``extra["t_s"]`` seconds since the first
-        fix.
+        ``z_var`` the fix's vertical variance (m^2), ``extra["t_s"]`` the fix's UTC time (POSIX
+        s; the along-track term uses differences only).
     track_z_std : ndarray of shape (n,)
         The along-track 1-sigma (m): the vertical 1-sigma of fixes whose error wanders in
         time, 0 for RTK fixed ones.
@@ -145,7 +145,7 @@ def read_gnss_samples(
     tr = Transformer.from_crs("EPSG:4326", map_crs, always_xy=True)
     x, y = tr.transform(fixes.lon_deg, fixes.lat_deg)
     z = np.asarray(fixes.h_m, float) - antenna_height_m
-    t = np.asarray(fixes.utc_s, float) - float(fixes.utc_s[0])
+    t = np.asarray(fixes.utc_s, float)  # UTC, POSIX s: logs of several days combine
     samples = ElevationSamples(
         np.column_stack([x, y]), z, up**2, crs=map_crs.to_string(), extra={"t_s": t}
     )
@@ -156,7 +156,7 @@ def read_gnss_samples(
     counts = ", ".join(f"{k} {v}" for k, v in sorted(Counter(kinds.tolist()).items()))
     skipped = {k: v for k, v in fixes.skipped.items() if v}
     parts = [
-        f"{path.name}: {fmt} log, {z.size} fixes over {t[-1] / 60:.1f} min ({counts})",
+        f"{path.name}: {fmt} log, {z.size} fixes over {(t[-1] - t[0]) / 60:.1f} min ({counts})",
         f"{sum(skipped.values())} records not used {skipped}" if skipped else "",
         f"heights: ellipsoidal minus the antenna height {antenna_height_m:g} m"
         + ("" if antenna_height_m > 0 else " (none given: --antenna-height)"),

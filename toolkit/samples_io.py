@@ -17,7 +17,7 @@ from terrain.grid import utm_crs
 
 from .certify_io import read_checkpoints
 
-__all__ = ["SampleTable", "grid_like", "read_samples", "sample_columns"]
+__all__ = ["SampleTable", "grid_like", "read_sample_files", "read_samples", "sample_columns"]
 
 #: Optional columns of a samples table (what ``glacimap localize`` / ``process`` write).
 OPTIONAL = ("z_var", "track_z_std_m", "shared_offset_std_m", "t_s")
@@ -312,3 +312,52 @@ def sample_columns(table: SampleTable) -> dict[str, np.ndarray]:
         out["t_s"] = np.asarray(s.extra["t_s"], float)
     out["crs"] = np.full(s.n, s.crs.to_string() if s.crs is not None else "")  # never guessed
     return out
+
+
+def read_sample_files(
+    paths: list[str | Path], crs: Any = None, antenna_height_m: float | None = None
+) -> SampleTable:
+    """:func:`read_samples` of several files (CSVs and GNSS logs: a survey's days), as one
+    table in the first file's CRS (``crs``, else the first file's own or its fixes' UTM
+    zone; every later file is read into it). Positions repeated across files are merged as
+    within one (:class:`terrain.ElevationSamples`); ``t_s`` is kept when every file has it.
+    """
+    paths = [Path(p) for p in paths]
+    first = read_samples(paths[0], crs, antenna_height_m)
+    if len(paths) == 1:
+        return first
+    into = first.samples.crs.to_string()
+    tables = [first] + [read_samples(p, into, antenna_height_m) for p in paths[1:]]
+    for p, t in zip(paths[1:], tables[1:], strict=True):
+        if not t.samples.crs.equals(first.samples.crs, ignore_axis_order=True):
+            raise bad_input(
+                f"SAMPLES {p.name}",
+                t.samples.crs.to_string(),
+                f"the CRS of {paths[0].name} ({into})",
+                "reproject the file, or give its rows a crs column",
+            )
+    timed = all("t_s" in t.samples.extra for t in tables)
+    extra = {"t_s": np.concatenate([t.samples.extra["t_s"] for t in tables])} if timed else {}
+    cat = ElevationSamples(
+        np.vstack([t.samples.xy for t in tables]),
+        np.concatenate([t.samples.z for t in tables]),
+        np.concatenate([t.samples.z_var for t in tables]),
+        crs=into,
+        extra=extra,
+    )
+    track = np.concatenate([t.track_z_std for t in tables])
+    notes = [t.note for t in tables if t.note]
+    n_in = sum(t.samples.n for t in tables)
+    if cat.n != n_in:  # the along-track term per merged sample, as within one file
+        track = np.sqrt(cat.z_var) * (track.max() > 0)
+        notes.append(f"{n_in - cat.n} samples at a position another file has: merged")
+    if not timed:
+        notes.append("t_s dropped: not every file has observation times")
+    notes.append(f"{len(paths)} files, {cat.n} samples, in {into}")
+    shared = max(t.shared_z_std for t in tables)
+    if len({t.shared_z_std for t in tables}) > 1 or shared > 0:
+        notes.append(
+            f"one shared vertical offset for all files, 1-sigma {shared:g} m (the largest "
+            "stated; each survey's own offset is not modelled apart)"
+        )
+    return SampleTable(cat, np.asarray(track, float), shared, "; ".join(notes))

@@ -55,10 +55,11 @@ def _print_demo(result) -> None:
 
 def reconstruct(
     samples: Annotated[
-        Path | None,
+        list[Path] | None,
         typer.Argument(
             help="CSV: x, y, z[, z_var, track_z_std_m, shared_offset_std_m] (aliases "
-            "allowed); or a GNSS log of the survey (NMEA, GPX, RTKLIB .pos)."
+            "allowed); or a GNSS log of the survey (NMEA, GPX, RTKLIB .pos); several files "
+            "are one survey (its days)."
         ),
     ] = None,
     demo: Annotated[bool, typer.Option(help="Run on the embedded default site.")] = False,
@@ -135,12 +136,13 @@ def reconstruct(
     A GNSS log (a kinematic profile) is read as its fixes, projected to --crs or their UTM
     zone; the samples it gave are written as samples.csv beside the map.
     """
+    samples = samples or None  # typer gives [] for none
     if demo == (samples is not None):
         raise bad_input(
             "SAMPLES / --demo",
-            samples,
-            "exactly one of a CSV path or --demo",
-            "pass a CSV file, or --demo",
+            None if samples is None else [str(p) for p in samples],
+            "sample files (CSV or GNSS logs) or --demo, not both",
+            "pass the survey's files, or --demo",
         )
     if bounds is not None and like is not None:
         raise bad_input("--bounds / --like", "both", "at most one", "pass one of them")
@@ -215,7 +217,7 @@ def _reconstruct_csv(
     from ..processing import prior_mean
     from ..products import write_csv, write_map_products
     from ..provenance import input_record
-    from ..samples_io import grid_like, read_samples, sample_columns
+    from ..samples_io import grid_like, read_sample_files, sample_columns
     from ..stages import certify_stage, map_grid, reconstruct_stage
 
     settings = load_scenario(cfg, overrides)
@@ -225,7 +227,7 @@ def _reconstruct_csv(
         given = scenario_lines(settings)
         lines = given if given[0] is not None else None
     seed = int(overrides["seed"])
-    table = read_samples(samples, crs, antenna_height)
+    table = read_sample_files(samples, crs, antenna_height)
     if table.note:
         console.print(f"[yellow]note:[/] {escape(str(table.note))}")
     if like is not None:  # the raster's own cells; samples projected into its CRS if need be
@@ -295,7 +297,7 @@ def _reconstruct_csv(
         [
             {k: r[k] for k in ("role", "name", "sha256")}
             for r in (
-                input_record("samples", samples),
+                *(input_record("samples", p) for p in samples),
                 input_record("prior", prior),
                 input_record("checkpoints", cps),
                 input_record("breaklines", None if lines is None else _file(lines[0])),
@@ -315,7 +317,7 @@ def _reconstruct_csv(
     before = previous_products(out_dir, SUMMARY)
     with staged_folder(out_dir) as tmp:
         write_map_products(tmp, rec, cert, settings)
-        if gnss_format(samples) is not None:  # the samples a log gave: change reads them
+        if any(gnss_format(p) for p in samples):  # the samples a log gave: change reads them
             write_csv(tmp / "samples.csv", sample_columns(table))
         written = sorted([p.name for p in tmp.iterdir()] + [SUMMARY])
         summary = {"seed": seed, "samples": data.n, "grid": list(grid.shape), "products": written}
