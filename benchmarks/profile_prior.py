@@ -16,6 +16,8 @@ white noise per cell, in the map's CRS. Every method maps the same cells:
 ``dem_gls``       the prior with its scale by GLS always (``terrain.prior_scale``'s check off:
                   the behaviour before 0.42.0).
 ``dem``           the prior, the scale checked (the default since 0.42.0).
+``dem_data``      the prior's cells as samples (``terrain.dem_as_data``; ``reconstruct
+                  --prior-as data``), a constant mean.
 
 Columns: RMSE / Delaunay's, the truth's coverage at 68 / 95 %, the fitted scale and the
 check's Hausman z. Results: ``benchmarks/results/profile_prior.json``.
@@ -38,7 +40,7 @@ from _harness import table, write_json  # noqa: E402
 
 SITES = ("olinda", "lux", "rm", "prism", "glacier", "bei", "gorillas", "clm", "volcano",
          "jacksboro", "topobathy")  # fmt: skip
-METHODS = ("delaunay", "constant", "dem_gls", "dem")
+METHODS = ("delaunay", "constant", "dem_gls", "dem", "dem_data")
 DEM_CELL_M = 30.0
 
 
@@ -75,6 +77,7 @@ def case(name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
 
     import terrain.prior_scale as prior_scale
     from terrain import Grid, RasterMean, TerrainGP, delaunay_linear
+    from terrain.dem_as_data import dem_as_data
 
     truth = real_dems.glacier_site(name)
     grid = Grid.from_dataarray(truth)
@@ -89,8 +92,11 @@ def case(name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
     for method in METHODS[1:]:
         prior_scale.HAUSMAN_Z = np.inf if method == "dem_gls" else threshold
         try:
-            mean = "constant" if method == "constant" else RasterMean(dem, offset="fit")
-            gp = TerrainGP(mean=mean, seed=0).fit(samples)
+            data = samples
+            mean = "constant" if method in ("constant", "dem_data") else RasterMean(dem)
+            if method == "dem_data":
+                data = dem_as_data(dem, samples, grid.bounds)[0]
+            gp = TerrainGP(mean=mean, seed=0).fit(data)
             ds = gp.predict_grid(grid)
         finally:
             prior_scale.HAUSMAN_Z = threshold

@@ -126,6 +126,15 @@ def reconstruct(
             "(subtracted from every fix).",
         ),
     ] = None,
+    prior_as: Annotated[
+        str,
+        typer.Option(
+            "--prior-as",
+            help='How --prior is read: "mean" (a + b * DEM, the default) or "data" (its '
+            "cells as samples with their own 1-sigma, measured on the survey: for a DEM "
+            "noisier than the survey's interpolation).",
+        ),
+    ] = "mean",
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
@@ -146,6 +155,10 @@ def reconstruct(
         )
     if bounds is not None and like is not None:
         raise bad_input("--bounds / --like", "both", "at most one", "pass one of them")
+    if prior_as not in ("mean", "data") or (prior_as == "data" and prior is None):
+        raise bad_input(
+            "--prior-as", prior_as, '"mean" or "data", with --prior', "e.g. --prior-as data"
+        )
     if horizontal_sd is not None:  # before the fit: a bad value fails in milliseconds
         from terrain.errors import positive_number
 
@@ -180,6 +193,7 @@ def reconstruct(
             lines,
             horizontal_sd,
             antenna_height,
+            prior_as,
         )
 
 
@@ -205,7 +219,7 @@ def _file(lines: Any) -> Any:
 
 def _reconstruct_csv(
     samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None,
-    horizontal_sd=None, antenna_height=None,
+    horizontal_sd=None, antenna_height=None, prior_as="mean",
 ):  # fmt: skip
     import warnings
 
@@ -247,11 +261,18 @@ def _reconstruct_csv(
     if footprint:  # said before the fit: a big map of few samples is long to wait for
         console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
     mean = prior_mean(prior, settings)
+    survey, as_data = data, None
+    if prior_as == "data":  # the DEM's cells as samples (terrain/dem_as_data.py)
+        from terrain.dem_as_data import dem_as_data
+
+        data, as_data = dem_as_data(prior, survey, grid.bounds)
+        mean = "constant"
+        console.print(f"[yellow]note:[/] {escape(as_data.note())}")
     if lines is not None:  # a step across each breakline, read now in the map's CRS
         from ..breaklines_io import with_breaklines
 
         notes: list[str] = []
-        mean = with_breaklines(mean, *lines, crs=data.crs, notes=notes, samples=data)
+        mean = with_breaklines(mean, *lines, crs=data.crs, notes=notes, samples=survey)
         for note in notes:  # e.g. reprojected from EPSG:4326; or what the search found
             console.print(f"breaklines: {escape(note)}")
         searched = "; ".join(notes) if _file(lines[0]) is None else None
@@ -264,7 +285,9 @@ def _reconstruct_csv(
                 mean,
                 settings,
                 seed,
+                landmark_xy=survey.xy,
                 landmark_rel_z_std=table.track_z_std,
+                landmark_t_s=survey.extra.get("t_s"),
                 shared_z_std=table.shared_z_std,
                 heldout_folds=int(settings["certify"]["heldout_folds"]),
                 horizontal_sd=horizontal_sd,
@@ -290,6 +313,8 @@ def _reconstruct_csv(
             "the cells (their 1-sigma is within 10 % of the prior's): the samples do not "
             "constrain most of this grid; narrow --bounds or add samples"
         )
+    if as_data is not None:
+        rec.product.attrs["prior_as_data"] = as_data.note()
     if lines is not None and searched:  # what the search found and dropped, with the map
         rec.product.attrs["breakline_search"] = searched
     # which files made the map, by name and SHA-256 (every product's metadata)
