@@ -228,6 +228,8 @@ def open_source(source: Any, source_crs: Any = None, nodata: Any = None) -> Rast
     source records no CRS (an error when it records a different one).
     """
     nodata = _check_nodata(nodata)
+    if isinstance(source, RasterSource) and source_crs is None and nodata is None:
+        return source  # already normalised (e.g. a RasterMean's own source)
     if isinstance(source, str | Path):
         return _from_path(Path(source), source_crs, nodata)
     if all(hasattr(source, a) for a in ("read", "transform", "crs")):  # rasterio dataset

@@ -132,3 +132,51 @@ def test_cli_prior_as_data(tmp_path):
     summary = json.loads((tmp_path / "m" / "reconstruct_summary.json").read_text())
     n_cells = int(re.search(r"(\d+) cells as samples", ds.attrs["prior_as_data"]).group(1))
     assert summary["samples"] == 600 + n_cells and n_cells >= 81  # the cells inside the map
+
+
+def test_process_reads_the_prior_as_data_from_the_option_or_the_settings(tmp_path):
+    # The example field folder (the default site's corner, EPSG:32608) with a 10 m prior DEM
+    # of its truth + 1.5 m datum offset + 0.3 m noise per cell: the cells join the landmarks
+    # (their offset measured near +1.5 m), the mean is constant, and the certificate says so.
+    # "data" without a DEM, or an unknown value, is refused before any work.
+    from pathlib import Path
+
+    from toolkit.config import load_scenario
+    from toolkit.field_survey import simulated_prior
+    from toolkit.pipeline import make_site
+
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
+    truth = make_site(load_scenario(example / "scenario.toml"))
+    dem = simulated_prior(truth, 10.0, 1.5, 0.3, np.random.default_rng(0))
+    tif = tmp_path / "dem.tif"
+    _write(dem, tif)
+    never = tmp_path / "never"
+    for args in (["--prior-as", "data"], ["--prior", str(tif), "--prior-as", "dem"]):
+        r = runner.invoke(app, ["process", str(example), *args, "--out", str(never)])
+        assert isinstance(r.exception, InputError) and "--prior-as" in str(r.exception)
+    cfg = tmp_path / "as_data.toml"
+    cfg.write_text('[prior]\nas = "data"\n')
+    r = runner.invoke(app, ["process", str(example), "--config", str(cfg), "--out", str(never)])
+    assert isinstance(r.exception, InputError) and "[prior] as" in str(r.exception)
+    assert not never.exists()
+    out = tmp_path / "out"
+    r = runner.invoke(
+        app, ["process", str(example), "--prior", str(tif), "--config", str(cfg), "--out", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    attrs = xr.open_dataset(out / "product.nc").attrs
+    assert attrs["mean_function"].startswith("ConstantMean")
+    offset = float(re.search(r"datum offset ([+-][\d.]+) m", attrs["prior_as_data"]).group(1))
+    assert abs(offset - 1.5) < 0.5  # the landmarks carry the survey's own GPS offset too
+    cert = json.loads((out / "certificate.json").read_text())
+    assert cert["reconstruction"]["prior_as_data"] == attrs["prior_as_data"]
+    assert "prior DEM" in r.output and "cells as samples" in r.output
+
+
+def _write(da, path):
+    g = Grid.from_dataarray(da)
+    with rasterio.open(
+        path, "w", driver="GTiff", height=g.ny, width=g.nx, count=1, dtype="float64",
+        crs=g.crs, transform=g.transform,
+    ) as dst:  # fmt: skip
+        dst.write(np.asarray(da.values, float), 1)

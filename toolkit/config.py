@@ -98,6 +98,10 @@ cells = "auto"                 # the paper's triangulated 8 x 8 mean unless the 
 coarse = "mesh"                # those cells through their centres (the paper's), or
                                # "area-means": the smoothest surface keeping each cell's mean
 resampling = "bilinear"        # reprojection of a DEM in another CRS
+as = "mean"                    # "mean": a + b * DEM (above); "data": its own cells as samples
+                               # with their datum offset and 1-sigma measured on the survey,
+                               # under a constant mean -- for a DEM noisier than the survey's
+                               # interpolation (docs/terrain.md "A satellite DEM as data")
 resolution_m = 75.0            # simulation: cell of the DEM written (75 m = 8 x 8 on 600 m)
 offset_m = 1.5                 # simulation: its vertical datum offset against GPS heights (m)
 noise_sd_m = 0.3               # simulation: its independent error per cell (m)
@@ -195,6 +199,8 @@ def _check(user: dict[str, Any], ref: dict[str, Any], where: tuple[str, ...]) ->
             pass  # metres or "auto": toolkit.breaklines_io.scenario_breaklines
         elif (*where, key) == ("prior", "coarse") and value not in ("mesh", "area-means"):
             raise bad_input(path, value, '"mesh" or "area-means"', 'coarse = "mesh"')
+        elif (*where, key) == ("prior", "as") and value not in ("mean", "data"):
+            raise bad_input(path, value, '"mean" or "data"', 'as = "data"')
         elif isinstance(value, dict):
             _check(value, ref.get(key, {}) if isinstance(ref.get(key), dict) else {}, (*where, key))
         elif key in ref and not isinstance(ref[key], dict):

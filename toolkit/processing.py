@@ -41,7 +41,7 @@ from .stages import (
     select_stage,
 )
 
-__all__ = ["PROCESS_STAGES", "ProcessResult", "ingest", "prior_mean", "process"]
+__all__ = ["PROCESS_STAGES", "ProcessResult", "ingest", "prior_as_data", "prior_mean", "process"]
 
 PROCESS_STAGES = ("ingest", "localize", "select", "reconstruct", "certify", "export")
 
@@ -183,6 +183,21 @@ def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
     return _named_by_file(mean)
 
 
+def prior_as_data(prior: Any, settings: dict[str, Any], given: str | None = None) -> bool:
+    """Whether the prior DEM is read as data (its cells as samples, :func:`terrain.
+    dem_as_data.dem_as_data`) rather than as the mean: ``given`` (``--prior-as``) or the
+    ``[prior] as`` setting. Reading it as data without a DEM is an :class:`InputError`."""
+    field = "--prior-as" if given is not None else "[prior] as"
+    value = given if given is not None else settings.get("prior", {}).get("as", "mean")
+    if value not in ("mean", "data"):
+        raise bad_input(field, value, '"mean" or "data"', "e.g. --prior-as data")
+    if value == "data" and prior is None:
+        raise bad_input(
+            field, value, "a prior DEM to read as data", "pass --prior DEM.tif, or read it as mean"
+        )
+    return value == "data"
+
+
 def _named_by_file(mean: RasterMean) -> RasterMean:
     """Label a file-backed RasterMean by its file name: provenance names the file, not where
     it was read, so the products' bytes do not depend on the folder (toolkit.provenance);
@@ -236,7 +251,9 @@ def process(
         A rover's field folder (``survey.json``), a ``glacimap-log/1`` folder or a log.
     prior : path, rasterio dataset, xarray.DataArray or RasterMean, optional
         The satellite DEM (any CRS; must cover the map): the GP's prior mean, its vertical
-        offset and scale fitted. None: a constant mean.
+        offset and scale fitted; with ``[prior] as = "data"`` its cells as samples beside
+        the survey's (:func:`terrain.dem_as_data.dem_as_data`) under a constant mean. None:
+        a constant mean.
     control : path or ControlPoints, optional
         Ground control (CSV, any CRS; factorgraph.read_control).
     checkpoints : path or Checkpoints, optional
@@ -316,7 +333,8 @@ def _process(
         # a step across each breakline (a vector file, read in the map's CRS, or vertices)
         # (``auto``: found in the selected samples, below)
         search = is_search(breaklines[0])
-        mean = prior_mean(prior, settings)
+        as_data = prior_as_data(prior, settings)  # the DEM's cells as samples (below)
+        mean = "constant" if as_data else prior_mean(prior, settings)
         if not search:
             mean = with_breaklines(mean, *breaklines, crs=mlog.crs)
         # which files made the map, by name and SHA-256 (every product's metadata)
@@ -350,7 +368,15 @@ def _process(
         found: list[str] = []
         if search:  # steps found in the selected samples (terrain.find_breaklines)
             mean = with_breaklines(mean, *breaklines, notes=found, samples=sel.samples)
-        rec = reconstruct_selection(sel, grid, mean, settings, seed, folds)
+        samples, dem_note = sel.samples, None
+        if as_data:  # co-kriged with the survey (terrain/dem_as_data.py)
+            from terrain.dem_as_data import dem_as_data
+
+            dem = prior.source if isinstance(prior, RasterMean) else prior
+            samples, dem_note = dem_as_data(dem, sel.samples, grid.bounds)
+        rec = reconstruct_selection(sel, grid, mean, settings, seed, folds, samples=samples)
+        if dem_note is not None:
+            rec.product.attrs["prior_as_data"] = dem_note.note()
         rec.product.attrs["inputs"] = json.dumps(
             [{k: r[k] for k in ("role", "name", "sha256")} for r in files]
         )

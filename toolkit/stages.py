@@ -285,14 +285,21 @@ def prior_coarsening_note(mean: Any) -> str | None:
 
 
 def reconstruct_selection(
-    sel: Any, grid: Grid, mean: Any, settings: dict[str, Any], seed: int, heldout_folds: int
+    sel: Any,
+    grid: Grid,
+    mean: Any,
+    settings: dict[str, Any],
+    seed: int,
+    heldout_folds: int,
+    samples: ElevationSamples | None = None,
 ) -> Reconstruction:
-    """:func:`reconstruct_stage` on a :func:`select_stage` result: its samples, with the kept
-    landmarks' relative vertical 1-sigma (shared offset removed, Eq 7) for the along-track
-    term and the survey's shared vertical 1-sigma."""
+    """:func:`reconstruct_stage` on a :func:`select_stage` result: its samples (or
+    ``samples``: them and more, e.g. a DEM's cells as data), with the kept landmarks'
+    relative vertical 1-sigma (shared offset removed, Eq 7) for the along-track term and
+    the survey's shared vertical 1-sigma."""
     kept = sel.table["kept"]
     return reconstruct_stage(
-        sel.samples,
+        sel.samples if samples is None else samples,
         grid,
         mean,
         settings,
@@ -343,6 +350,8 @@ def certify_stage(
         "predict_route": product.attrs.get("predict_route"),
         "shared_vertical_offset_std_m": product.attrs.get("shared_vertical_offset_std_m"),
     }
+    if product.attrs.get("prior_as_data"):  # the DEM's cells were samples, not the mean
+        cert["reconstruction"]["prior_as_data"] = product.attrs["prior_as_data"]
     return cert
 
 

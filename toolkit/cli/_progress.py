@@ -200,6 +200,9 @@ def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
                 )
             elif f"coverage_{level}" in pooled:
                 table.add_row(f"held-out coverage {level}", f"{pooled[f'coverage_{level}']:.3f}")
+    as_data = (cert.get("reconstruction") or {}).get("prior_as_data")
+    if as_data:  # the DEM's cells were samples: how many, their offset and 1-sigma
+        table.add_row("prior DEM", as_data.removeprefix("prior DEM as data: "))
     ci = cert.get("contour_interval", {})
     if ci.get("certified_m"):
         table.add_row("contour interval (m)", f"{ci['certified_m']:g}")

@@ -50,13 +50,24 @@ def process_command(
     breaklines: Breaklines = None,
     breakline_width: BreaklineWidth = "auto",
     breakline_taper: BreaklineTaper = "auto",
+    prior_as: Annotated[
+        str | None,
+        typer.Option(
+            "--prior-as",
+            help='How --prior is read: "mean" (a + b * DEM) or "data" (its cells as samples '
+            "with their own 1-sigma, measured on the survey). Default: [prior] as.",
+        ),
+    ] = None,
 ) -> None:
     """Ingest -> localize -> select -> reconstruct -> certify -> export -> report."""
     from toolkit.config import load_scenario
-    from toolkit.processing import PROCESS_STAGES, process
+    from toolkit.processing import PROCESS_STAGES, prior_as_data, process
 
     console = Console()
     settings = load_scenario(config)  # bad settings fail before any work
+    if prior_as is not None:  # --prior-as over the settings' [prior] as
+        settings["prior"]["as"] = prior_as
+    prior_as_data(prior, settings, prior_as)  # "data" without --prior fails here too
     if breaklines is not None:  # a bad file fails before any work too
         from toolkit.breaklines_io import check_breakline_options
 

@@ -127,14 +127,14 @@ def reconstruct(
         ),
     ] = None,
     prior_as: Annotated[
-        str,
+        str | None,
         typer.Option(
             "--prior-as",
             help='How --prior is read: "mean" (a + b * DEM, the default) or "data" (its '
             "cells as samples with their own 1-sigma, measured on the survey: for a DEM "
-            "noisier than the survey's interpolation).",
+            "noisier than the survey's interpolation). Default: --config's [prior] as.",
         ),
-    ] = "mean",
+    ] = None,
 ) -> None:
     """Reconstruct a terrain map (mean and 1-sigma) with a Gaussian process.
 
@@ -155,10 +155,10 @@ def reconstruct(
         )
     if bounds is not None and like is not None:
         raise bad_input("--bounds / --like", "both", "at most one", "pass one of them")
-    if prior_as not in ("mean", "data") or (prior_as == "data" and prior is None):
-        raise bad_input(
-            "--prior-as", prior_as, '"mean" or "data", with --prior', "e.g. --prior-as data"
-        )
+    if prior_as is not None:  # before anything is read: a bad value fails in milliseconds
+        from ..processing import prior_as_data
+
+        prior_as_data(prior, {}, prior_as)
     if horizontal_sd is not None:  # before the fit: a bad value fails in milliseconds
         from terrain.errors import positive_number
 
@@ -219,7 +219,7 @@ def _file(lines: Any) -> Any:
 
 def _reconstruct_csv(
     samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None,
-    horizontal_sd=None, antenna_height=None, prior_as="mean",
+    horizontal_sd=None, antenna_height=None, prior_as=None,
 ):  # fmt: skip
     import warnings
 
@@ -228,7 +228,7 @@ def _reconstruct_csv(
     from ..config import load_scenario
     from ..export._files import previous_products, remove_stale, staged_folder
     from ..gnss_samples import gnss_format
-    from ..processing import prior_mean
+    from ..processing import prior_as_data, prior_mean
     from ..products import write_csv, write_map_products
     from ..provenance import input_record
     from ..samples_io import grid_like, read_sample_files, sample_columns
@@ -260,14 +260,15 @@ def _reconstruct_csv(
     footprint = _footprint_note(data, grid)
     if footprint:  # said before the fit: a big map of few samples is long to wait for
         console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
-    mean = prior_mean(prior, settings)
     survey, as_data = data, None
-    if prior_as == "data":  # the DEM's cells as samples (terrain/dem_as_data.py)
+    if prior_as_data(prior, settings, prior_as):  # its cells as samples (dem_as_data.py)
         from terrain.dem_as_data import dem_as_data
 
         data, as_data = dem_as_data(prior, survey, grid.bounds)
         mean = "constant"
         console.print(f"[yellow]note:[/] {escape(as_data.note())}")
+    else:
+        mean = prior_mean(prior, settings)
     if lines is not None:  # a step across each breakline, read now in the map's CRS
         from ..breaklines_io import with_breaklines
 
