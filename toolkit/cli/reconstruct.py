@@ -126,6 +126,16 @@ def reconstruct(
             "(subtracted from every fix).",
         ),
     ] = None,
+    gnss_heights: Annotated[
+        str | None,
+        typer.Option(
+            "--gnss-heights",
+            help="GNSS log as SAMPLES: what its heights are above where the file does not "
+            'say (GPX ele, NMEA without the geoid separation): "ellipsoidal", "egm96", '
+            '"egm2008", or "auto" (GPX above EGM96, NMEA ellipsoidal; said). Carried to '
+            "the WGS 84 ellipsoid, the map's datum.",
+        ),
+    ] = None,
     prior_as: Annotated[
         str | None,
         typer.Option(
@@ -150,11 +160,15 @@ def reconstruct(
         raise bad_input(
             "SAMPLES / --demo",
             None if samples is None else [str(p) for p in samples],
-            "sample files (CSV or GNSS logs) or --demo, not both",
+            "exactly one of: sample files (CSV or GNSS logs), or --demo",
             "pass the survey's files, or --demo",
         )
     if bounds is not None and like is not None:
         raise bad_input("--bounds / --like", "both", "at most one", "pass one of them")
+    if gnss_heights is not None:  # checked before anything is read, too
+        from terrain.vertical_datum import height_datum_option
+
+        gnss_heights = height_datum_option(gnss_heights, "--gnss-heights", allow_auto=True)
     if prior_as is not None:  # before anything is read: a bad value fails in milliseconds
         from ..processing import prior_as_data
 
@@ -194,6 +208,7 @@ def reconstruct(
             horizontal_sd,
             antenna_height,
             prior_as,
+            gnss_heights,
         )
 
 
@@ -219,7 +234,7 @@ def _file(lines: Any) -> Any:
 
 def _reconstruct_csv(
     samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None,
-    horizontal_sd=None, antenna_height=None, prior_as=None,
+    horizontal_sd=None, antenna_height=None, prior_as=None, gnss_heights=None,
 ):  # fmt: skip
     import warnings
 
@@ -241,7 +256,7 @@ def _reconstruct_csv(
         given = scenario_lines(settings)
         lines = given if given[0] is not None else None
     seed = int(overrides["seed"])
-    table = read_sample_files(samples, crs, antenna_height)
+    table = read_sample_files(samples, crs, antenna_height, gnss_heights)
     if table.note:
         console.print(f"[yellow]note:[/] {escape(str(table.note))}")
     if like is not None:  # the raster's own cells; samples projected into its CRS if need be
