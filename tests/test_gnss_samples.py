@@ -4,7 +4,8 @@ reconstruct profile.gpx``).
 The logs are written here with independent writers: GPX by ``gpxpy``, NMEA sentences by
 ``pynmea2`` (its own checksums), an RTKLIB ``.pos`` by hand after RTKLIB 2.4.3's output
 format. References: positions projected by ``pyproj`` directly, heights by hand (ellipsoidal
-height minus the antenna height), the kinds' UERE from ``factorgraph.field.fixes``.
+height minus the antenna height), the kinds' UERE from ``factorgraph.field.fixes``; EGM96's
+undulation by pyproj's own CRS transform (WGS 84 3-D to WGS 84 + EGM96 height).
 """
 
 from __future__ import annotations
@@ -53,8 +54,22 @@ def _profile(n_lines=4, step=3.0, spacing=100.0, length=300.0):
     return np.vstack(pts)
 
 
-def _gpx(path, xy, h, hdop=None, vdop=None):
+def _undulation(lon, lat):
+    """EGM96's N (m) by pyproj's own CRS transform (WGS 84 3-D -> WGS 84 + EGM96 height),
+    the grid found in the system's PROJ folder: independent of terrain.vertical_datum."""
+    import pyproj.datadir
+
+    pyproj.datadir.append_data_dir("/usr/share/proj")
+    to_msl = Transformer.from_crs("EPSG:4979", "EPSG:4326+5773", always_xy=True)
+    return -np.asarray(to_msl.transform(lon, lat, np.zeros(np.size(lon)))[2])
+
+
+def _gpx(path, xy, h, hdop=None, vdop=None, sea_level=True):
+    """A GPX of ellipsoidal heights ``h`` written as a consumer receiver does: ``ele`` above
+    sea level (EGM96), unless ``sea_level`` is False."""
     lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
+    if sea_level and h[0] is not None:
+        h = np.asarray(h, float) - _undulation(lon, lat)
     g = gpxpy.gpx.GPX()
     trk = gpxpy.gpx.GPXTrack()
     seg = gpxpy.gpx.GPXTrackSegment()
@@ -71,11 +86,14 @@ def _gpx(path, xy, h, hdop=None, vdop=None):
     return path
 
 
-def _pos(path, xy, h, q, sdu):
-    """RTKLIB 2.4.3 llh output, GPST (UTC + 18 s)."""
+def _pos(path, xy, h, q, sdu, geodetic=False):
+    """RTKLIB 2.4.3 llh output, GPST (UTC + 18 s); ``geodetic``: its height line says so."""
     lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
+    kind = "geodetic" if geodetic else "ellipsoidal"
     lines = [
         "% program   : RTKLIB ver.2.4.3",
+        f"% (lat/lon/height=WGS84/{kind},Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of "
+        "satellites)",
         "%  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   "
         "sde(m)   sdu(m)  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio",
     ]
@@ -119,23 +137,65 @@ def test_gpx_without_dop_takes_the_kinds_uere_and_its_utm_zone(tmp_path):
     np.testing.assert_allclose(s2.z_var, (UERE_M["single"] * 1.4) ** 2)
 
 
-def test_nmea_without_a_date_reads_relative_times(tmp_path):
-    xy = _profile(n_lines=1, step=30.0)
-    lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
+def test_heights_are_carried_to_the_ellipsoid(tmp_path):
+    # GPX ele (sea level, as receivers write it) and an RTKLIB solution in geodetic heights
+    # get EGM96's N back; an NMEA GGA without its separation is read as stated and counted;
+    # --gnss-heights says otherwise. N here (58.4 N, 135 W) is ~ +6.6 m: no small offset.
+    xy = _profile(n_lines=1, step=10.0)
     h = _surface(*xy.T)
+    lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
+    n = _undulation(lon, lat)
+    assert np.all(np.abs(n) > 3.0)
+    s, _, note = read_gnss_samples(_gpx(tmp_path / "msl.gpx", xy, h), UTM)
+    np.testing.assert_allclose(s.z, h, atol=2e-4)  # 4-decimal ele
+    assert "GPX ele states no datum: read as above EGM96" in note
+    assert "--gnss-heights ellipsoidal if they are not" in note
+    ell = _gpx(tmp_path / "ell.gpx", xy, h, sea_level=False)
+    s, _, note = read_gnss_samples(ell, UTM, heights="ellipsoidal")
+    np.testing.assert_allclose(s.z, h, atol=2e-4)
+    assert "read as ellipsoidal heights" in note and "pass --gnss-heights" not in note
+    q = np.ones(len(h), int)
+    pos = _pos(tmp_path / "geo.pos", xy, h - n, q, np.full(len(h), 0.02), geodetic=True)
+    s, _, note = read_gnss_samples(pos, UTM)
+    np.testing.assert_allclose(s.z, h, atol=2e-4)
+    assert "geodetic heights (its header) taken as above EGM96" in note
+    nmea = _nmea(tmp_path / "nosep.nmea", xy, h - n, separation="")
+    s, _, note = read_gnss_samples(nmea, UTM)
+    np.testing.assert_allclose(s.z, h - n, atol=2e-3)  # as read, and said
+    assert f"{len(h)} GGA without a geoid separation states no datum" in note
+    s, _, _ = read_gnss_samples(nmea, UTM, heights="egm96")
+    np.testing.assert_allclose(s.z, h, atol=2e-3)
+    with pytest.raises(InputError, match="--gnss-heights"):
+        read_gnss_samples(nmea, UTM, heights="msl")
+    csv = tmp_path / "s.csv"
+    pd.DataFrame({"x": xy[:, 0], "y": xy[:, 1], "z": h, "crs": UTM}).to_csv(csv, index=False)
+    with pytest.raises(InputError, match="--gnss-heights.*a CSV's z is read as given"):
+        read_samples(csv, gnss_heights="egm96")
+
+
+def _nmea(path, xy, h, separation="10.000"):
+    """GGA only (no date), RTK fixed, the altitude ``h - separation`` (``""``: none stated)."""
+    lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
     rows = []
     for k in range(len(h)):
         t = T0 + dt.timedelta(seconds=k)
         la, lo = abs(lat[k]), abs(lon[k])
+        alt = h[k] - (float(separation) if separation else 0.0)
         msg = pynmea2.GGA(
             "GP", "GGA",
             (f"{t:%H%M%S}.00", f"{int(la):02d}{(la % 1) * 60:010.7f}", "N" if lat[k] > 0 else "S",
              f"{int(lo):03d}{(lo % 1) * 60:010.7f}", "E" if lon[k] > 0 else "W", "4", "12", "0.7",
-             f"{h[k] - 10.0:.3f}", "M", "10.000", "M", "1.0", "0000"),
+             f"{alt:.3f}", "M", separation, "M", "1.0", "0000"),
         )  # fmt: skip
         rows.append(str(msg))
-    path = tmp_path / "log.nmea"
     path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_nmea_without_a_date_reads_relative_times(tmp_path):
+    xy = _profile(n_lines=1, step=30.0)
+    h = _surface(*xy.T)
+    path = _nmea(tmp_path / "log.nmea", xy, h)
     s, track, note = read_gnss_samples(path, UTM, 1.5)
     np.testing.assert_allclose(s.z, h - 1.5, atol=2e-3)  # altitude + geoid separation - antenna
     np.testing.assert_allclose(s.xy, xy, atol=0.01)

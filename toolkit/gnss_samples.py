@@ -14,6 +14,13 @@ orbits): those fixes carry it as the along-track term of the map's 1-sigma
 (``track_z_std_m`` = the fix's vertical 1-sigma, with its time ``t_s``: the same model as a
 rover's landmarks, :mod:`toolkit.error_budget`); RTK fixed heights are independent spot
 heights. Fixes a reader cannot use are counted by reason, never dropped silently.
+
+Heights are carried to the WGS 84 ellipsoid (the map's datum): NMEA's altitude plus its
+geoid separation; an RTKLIB solution as its header states (geodetic heights: EGM96 added
+back); heights whose datum the file does not state (GPX ``ele``, a GGA without the
+separation) on ``--gnss-heights`` (:data:`UNSTATED_HEIGHTS` by default), said in the note.
+Mixing a GPX in sea-level heights with an RTKLIB solution in ellipsoidal ones would otherwise
+put a step of the geoid's undulation (tens of metres) between the files.
 """
 
 from __future__ import annotations
@@ -29,7 +36,13 @@ from terrain import ElevationSamples
 from terrain.errors import InputError, bad_input
 from terrain.grid import as_crs, utm_crs
 
-__all__ = ["GNSS_SUFFIXES", "INDEPENDENT_KINDS", "gnss_format", "read_gnss_samples"]
+__all__ = [
+    "GNSS_SUFFIXES",
+    "INDEPENDENT_KINDS",
+    "UNSTATED_HEIGHTS",
+    "gnss_format",
+    "read_gnss_samples",
+]
 
 #: File suffixes read as GNSS logs (others are sniffed: NMEA loggers write .txt / .log).
 GNSS_SUFFIXES = {".gpx": "gpx", ".nmea": "nmea", ".nma": "nmea", ".pos": "rtklib"}
@@ -71,6 +84,54 @@ def _read(path: Path, fmt: str) -> tuple[Any, str]:
         ), "no UTC date in the log (no RMC / ZDA): times relative"
 
 
+#: What a log's heights are above when it does not say (``--gnss-heights auto``): GPX
+#: ``ele`` as consumer receivers write it (sea level: their geoid, EGM96 here); an NMEA GGA
+#: without the geoid separation as read (a receiver without a geoid model gives the
+#: ellipsoidal height there).
+UNSTATED_HEIGHTS = {"gpx": "egm96", "nmea": "ellipsoidal", "rtklib": "ellipsoidal"}
+
+
+def _ellipsoidal(fixes: Any, fmt: str, heights: str) -> tuple[np.ndarray, str]:
+    """The fixes' WGS 84 ellipsoidal heights (m) and, in words, what was taken and added.
+
+    A height the file states the datum of (NMEA altitude + separation, an RTKLIB solution's
+    header) is read as stated; the others are on ``heights`` (``"auto"``:
+    :data:`UNSTATED_HEIGHTS`), carried to the ellipsoid with the geoid's undulation."""
+    from terrain.vertical_datum import ellipsoidal_height, height_datum_option
+
+    field = "--gnss-heights"
+    heights = height_datum_option(heights, field, allow_auto=True)
+    n = fixes.h_m.size
+    unstated = np.zeros(n, bool) if fixes.height_unstated is None else fixes.height_unstated
+    h = np.asarray(fixes.h_m, float).copy()
+    notes = []
+    stated = fixes.height_datum
+    if stated != "ellipsoidal" and (~unstated).any():  # an RTKLIB solution in geodetic heights
+        k = ~unstated
+        h[k] = ellipsoidal_height(h[k], fixes.lon_deg[k], fixes.lat_deg[k], stated, field)
+        notes.append(
+            f"geodetic heights (its header) taken as above {stated.upper()}, RTKLIB's "
+            f"default geoid: N {np.mean(h[k] - fixes.h_m[k]):+.2f} m added"
+        )
+    if unstated.any():
+        datum = UNSTATED_HEIGHTS[fmt] if heights == "auto" else heights
+        k = unstated
+        h[k] = ellipsoidal_height(h[k], fixes.lon_deg[k], fixes.lat_deg[k], datum, field)
+        what = "GPX ele" if fmt == "gpx" else f"{int(k.sum())} GGA without a geoid separation"
+        how = (
+            "as ellipsoidal heights"
+            if datum == "ellipsoidal"
+            else f"as above {datum.upper()} (N {np.mean(h[k] - fixes.h_m[k]):+.2f} m added)"
+        )
+        other = "egm96" if datum == "ellipsoidal" else "ellipsoidal"
+        why = " (what consumer receivers write)" if heights == "auto" and fmt == "gpx" else ""
+        notes.append(
+            f"{what} states no datum: read {how}{why}"
+            + (f"; pass --gnss-heights {other} if they are not" if heights == "auto" else "")
+        )
+    return h, "; ".join(notes)
+
+
 def _map_crs(lon: np.ndarray, lat: np.ndarray, crs: Any) -> tuple[Any, str]:
     if crs is not None:
         out = as_crs(crs, "--crs")
@@ -88,7 +149,7 @@ def _map_crs(lon: np.ndarray, lat: np.ndarray, crs: Any) -> tuple[Any, str]:
 
 
 def read_gnss_samples(
-    path: str | Path, crs: Any = None, antenna_height_m: float = 0.0
+    path: str | Path, crs: Any = None, antenna_height_m: float = 0.0, heights: str = "auto"
 ) -> tuple[ElevationSamples, np.ndarray, str]:
     """The surface samples of a GNSS log.
 
@@ -102,6 +163,12 @@ def read_gnss_samples(
     antenna_height_m : float
         Height of the antenna's phase centre above the surface, m (subtracted from every
         fix's ellipsoidal height).
+    heights : str
+        What the heights the log does not state the datum of are above: ``"ellipsoidal"``,
+        ``"egm96"``, ``"egm2008"`` (carried to the ellipsoid with the geoid's undulation,
+        :mod:`terrain.vertical_datum`), or ``"auto"`` (:data:`UNSTATED_HEIGHTS`: GPX ``ele``
+        above EGM96, an NMEA altitude without its separation as ellipsoidal). Said in
+        ``note``.
 
     Returns
     -------
@@ -144,7 +211,8 @@ def read_gnss_samples(
     map_crs, crs_note = _map_crs(fixes.lon_deg, fixes.lat_deg, crs)
     tr = Transformer.from_crs("EPSG:4326", map_crs, always_xy=True)
     x, y = tr.transform(fixes.lon_deg, fixes.lat_deg)
-    z = np.asarray(fixes.h_m, float) - antenna_height_m
+    h, height_note = _ellipsoidal(fixes, fmt, heights)
+    z = h - antenna_height_m
     t = np.asarray(fixes.utc_s, float)  # UTC, POSIX s: logs of several days combine
     samples = ElevationSamples(
         np.column_stack([x, y]), z, up**2, crs=map_crs.to_string(), extra={"t_s": t}
@@ -160,6 +228,7 @@ def read_gnss_samples(
         f"{sum(skipped.values())} records not used {skipped}" if skipped else "",
         f"heights: ellipsoidal minus the antenna height {antenna_height_m:g} m"
         + ("" if antenna_height_m > 0 else " (none given: --antenna-height)"),
+        height_note,
         f"{int(unstated.sum())} fixes state no vertical 1-sigma: their kind's UERE x "
         f"{VERTICAL_FACTOR:g}"
         if unstated.any()

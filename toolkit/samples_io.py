@@ -75,14 +75,18 @@ def _degree_like(xy: np.ndarray) -> bool:
 
 
 def read_samples(
-    path: str | Path, crs: Any = None, antenna_height_m: float | None = None
+    path: str | Path,
+    crs: Any = None,
+    antenna_height_m: float | None = None,
+    gnss_heights: str | None = None,
 ) -> SampleTable:
     """Read ``x, y, z[, z_var, track_z_std_m, shared_offset_std_m, t_s]`` (aliases as for
     checkpoints: easting/northing/elevation, lon/lat/height...). ``t_s`` (each sample's mean
     observation time, s) goes into the samples' ``extra["t_s"]``: the along-track term of
     :func:`terrain.volume_change` needs it; a file without it still reads (the term is then
     stated as not available). A GNSS log (NMEA, GPX, RTKLIB ``.pos``) is read as its fixes
-    (:func:`toolkit.gnss_samples.read_gnss_samples`, less ``antenna_height_m``).
+    (:func:`toolkit.gnss_samples.read_gnss_samples`, less ``antenna_height_m``, its heights
+    of unstated datum on ``gnss_heights``, default ``"auto"``).
 
     Raises
     ------
@@ -96,7 +100,9 @@ def read_samples(
     if not path.is_file():
         raise bad_input("SAMPLES", str(path), "an existing CSV or GNSS file", "check the path")
     if gnss_format(path) is not None:
-        samples, track, note = read_gnss_samples(path, crs, antenna_height_m or 0.0)
+        samples, track, note = read_gnss_samples(
+            path, crs, antenna_height_m or 0.0, gnss_heights or "auto"
+        )
         return SampleTable(samples, track, 0.0, note)
     if antenna_height_m is not None:
         raise bad_input(
@@ -104,6 +110,13 @@ def read_samples(
             antenna_height_m,
             "a GNSS log (NMEA, GPX, RTKLIB .pos) as SAMPLES: a CSV's z is the surface's",
             f"subtract the antenna height in {path.name}, or drop --antenna-height",
+        )
+    if gnss_heights is not None:
+        raise bad_input(
+            "--gnss-heights",
+            gnss_heights,
+            "a GNSS log (NMEA, GPX, RTKLIB .pos) as SAMPLES: a CSV's z is read as given",
+            f"convert {path.name}'s heights to the survey's datum, or drop --gnss-heights",
         )
     table = read_checkpoints(path, crs=crs)
     if table.crs is None:
@@ -315,7 +328,10 @@ def sample_columns(table: SampleTable) -> dict[str, np.ndarray]:
 
 
 def read_sample_files(
-    paths: list[str | Path], crs: Any = None, antenna_height_m: float | None = None
+    paths: list[str | Path],
+    crs: Any = None,
+    antenna_height_m: float | None = None,
+    gnss_heights: str | None = None,
 ) -> SampleTable:
     """:func:`read_samples` of several files (CSVs and GNSS logs: a survey's days), as one
     table in the first file's CRS (``crs``, else the first file's own or its fixes' UTM
@@ -323,11 +339,11 @@ def read_sample_files(
     within one (:class:`terrain.ElevationSamples`); ``t_s`` is kept when every file has it.
     """
     paths = [Path(p) for p in paths]
-    first = read_samples(paths[0], crs, antenna_height_m)
+    first = read_samples(paths[0], crs, antenna_height_m, gnss_heights)
     if len(paths) == 1:
         return first
     into = first.samples.crs.to_string()
-    tables = [first] + [read_samples(p, into, antenna_height_m) for p in paths[1:]]
+    tables = [first] + [read_samples(p, into, antenna_height_m, gnss_heights) for p in paths[1:]]
     for p, t in zip(paths[1:], tables[1:], strict=True):
         if not t.samples.crs.equals(first.samples.crs, ignore_axis_order=True):
             raise bad_input(

@@ -79,6 +79,12 @@ class GPSFixes:
         Position records read (used + skipped).
     fmt : str
         ``"nmea"``, ``"gpx"`` or ``"rtklib"``.
+    height_datum : str
+        What the file states its heights are above: ``"ellipsoidal"`` (WGS 84) or a geoid of
+        :data:`terrain.vertical_datum.GEOIDS` (an RTKLIB solution in geodetic heights).
+    height_unstated : ndarray of shape (n,), bool, or None
+        Fixes whose record does not say which surface its height is above (GPX ``ele``, an
+        NMEA GGA without the geoid separation); None: every fix states it.
     """
 
     utc_s: np.ndarray
@@ -90,10 +96,13 @@ class GPSFixes:
     skipped: Counter = field(default_factory=Counter)
     n_records: int = 0
     fmt: str = ""
+    height_datum: str = "ellipsoidal"
+    height_unstated: np.ndarray | None = None
 
     @classmethod
     def collect(cls, rows: list[tuple], skipped: Counter, fmt: str, source: str) -> GPSFixes:
-        """Fixes from ``rows`` of ``(utc_s, lat, lon, h, sE, sN, sU, kind)`` in file order.
+        """Fixes from ``rows`` of ``(utc_s, lat, lon, h, sE, sN, sU, kind)`` in file order
+        (a ninth element True: the record does not state its height's datum).
 
         Non-finite positions are counted as ``nan_fix``; a time equal to the last kept one as
         ``duplicate_time``, earlier as ``backwards_time`` (the first record wins).
@@ -125,6 +134,7 @@ class GPSFixes:
         if not kept:
             raise bad_input(source, dict(skipped), "at least one finite fix", "repair the file")
         a = np.array([r[:7] for r in kept], float)
+        unstated = np.array([len(r) > 8 and bool(r[8]) for r in kept])
         return cls(
             utc_s=a[:, 0],
             lat_deg=a[:, 1],
@@ -135,6 +145,7 @@ class GPSFixes:
             skipped=skipped,
             n_records=n_records,
             fmt=fmt,
+            height_unstated=unstated if unstated.any() else None,
         )
 
     def subset(self, keep: np.ndarray) -> GPSFixes:
@@ -149,6 +160,8 @@ class GPSFixes:
             self.skipped,
             self.n_records,
             self.fmt,
+            self.height_datum,
+            None if self.height_unstated is None else self.height_unstated[keep],
         )
 
 
@@ -156,8 +169,11 @@ def project_fixes(fixes: GPSFixes, gps_crs: str, map_crs: str) -> np.ndarray:
     """Projected easting, northing (m) and height (n, 3) of the fixes in ``map_crs``.
 
     ``gps_crs`` is the geographic CRS of the file (EPSG:4326 / EPSG:4979: WGS 84); the height
-    passes through unchanged. A map CRS that is not projected, or a transform that gives
-    non-finite coordinates (a fix outside the CRS's area), is an InputError.
+    passes through unchanged, unless ``gps_crs`` is compound with a geoid's height (e.g.
+    ``EPSG:4326+5773``, WGS 84 + EGM96): then it is carried to the ellipsoid
+    (:func:`terrain.vertical_datum.ellipsoidal_height`). A map CRS that is not projected,
+    another vertical CRS, or a transform that gives non-finite coordinates (a fix outside
+    the CRS's area), is an InputError.
     """
     from pyproj import CRS, Transformer
     from pyproj.exceptions import CRSError, ProjError
@@ -175,6 +191,22 @@ def project_fixes(fixes: GPSFixes, gps_crs: str, map_crs: str) -> np.ndarray:
         )
     if not src.is_geographic:
         raise bad_input("gps crs", gps_crs, "a geographic CRS (lat/lon)", "e.g. EPSG:4326")
+    h = fixes.h_m
+    if src.is_compound:  # heights above a geoid, stated by the CRS: to the ellipsoid
+        from terrain.vertical_datum import GEOIDS, ellipsoidal_height
+
+        vertical = src.sub_crs_list[-1].to_string()
+        geoid = next((k for k, g in GEOIDS.items() if g["crs"] == vertical), None)
+        if geoid is None:
+            raise bad_input(
+                "gps crs",
+                gps_crs,
+                "heights on the ellipsoid (EPSG:4979) or above "
+                + " / ".join(f"{k.upper()} ({g['crs']})" for k, g in GEOIDS.items()),
+                "convert the heights, or state them as e.g. EPSG:4326+5773",
+            )
+        h = ellipsoidal_height(h, fixes.lon_deg, fixes.lat_deg, geoid, "gps crs")
+        src = src.sub_crs_list[0]
     try:
         tr = Transformer.from_crs(src, dst, always_xy=True)
         e, n = tr.transform(fixes.lon_deg, fixes.lat_deg, errcheck=False)
@@ -191,7 +223,7 @@ def project_fixes(fixes: GPSFixes, gps_crs: str, map_crs: str) -> np.ndarray:
             "a map CRS whose area covers the survey",
             "pick the UTM zone of the site",
         )
-    return np.column_stack([e, n, fixes.h_m])
+    return np.column_stack([e, n, h])
 
 
 def crs_area_warning(

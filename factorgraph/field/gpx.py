@@ -90,5 +90,7 @@ def read_gpx(path: str | Path, sigma_table: dict[str, float] | None = None) -> G
                 None if p.vertical_dilution is None else float(p.vertical_dilution),
                 table,
             )
-            rows.append((_posix(p.time), p.latitude, p.longitude, float(p.elevation), *sig, kind))
+            # GPX does not say which surface ``ele`` is above (sea level or the ellipsoid)
+            row = (_posix(p.time), p.latitude, p.longitude, float(p.elevation), *sig, kind, True)
+            rows.append(row)
     return GPSFixes.collect(rows, skipped, "gpx", path.name)

@@ -2,6 +2,8 @@
 
 * ``GGA`` gives the time of day, latitude / longitude, fix quality, HDOP, altitude above
   the geoid and the geoid separation; the ellipsoidal height is ``altitude + separation``.
+  A GGA without the separation does not say which surface its altitude is above: the fix is
+  flagged (``GPSFixes.height_unstated``) and its altitude kept as read.
 * ``RMC`` or ``ZDA`` gives the date (GGA has none); without either, ``gps.date`` in
   ``survey.json``. A GGA time of day that falls back by more than 12 h rolls the date over
   to the next day; GGA logged before the first dated sentence take its date, or the day
@@ -255,4 +257,5 @@ def _gga_row(s, day, tod, gst, table, skipped) -> tuple | None:
     sep = _raw(s, "geo_sep")
     h = _float(_raw(s, "altitude")) + (_float(sep) if sep else 0.0)
     sig = gst.get(tod) or sigma_from_dop(kind, _float(_raw(s, "horizontal_dil")), None, table)
-    return (_posix(day, tod), lat_deg, lon_deg, h, *sig, kind)
+    # without the separation the altitude's surface is not stated (ellipsoid or sea level)
+    return (_posix(day, tod), lat_deg, lon_deg, h, *sig, kind, not sep)

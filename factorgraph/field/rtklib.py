@@ -170,7 +170,9 @@ def _ref_pos(header: list[str], name: str) -> np.ndarray:
 
 def read_rtklib(path: str | Path) -> GPSFixes:
     """Read an RTKLIB ``.pos`` solution (any position and time format) into
-    :class:`.fixes.GPSFixes` (UTC, WGS 84 latitude / longitude / ellipsoidal height)."""
+    :class:`.fixes.GPSFixes` (UTC, WGS 84 latitude / longitude / ellipsoidal height; a
+    solution written in geodetic heights, ``height=WGS84/geodetic`` in its header, keeps
+    them, its ``height_datum`` ``"egm96"``: RTKLIB's default geoid)."""
     path = Path(path)
     lines = path.read_text(errors="replace").splitlines()
     if not any(ln.strip() for ln in lines):
@@ -223,7 +225,10 @@ def read_rtklib(path: str | Path) -> GPSFixes:
     pos_a, sd_a = np.array(pos, float), np.array(sd, float)
     llh, sigma = _positions(layout, pos_a, sd_a, base)
     rows = [(t_utc[i], *llh[i], *sigma[i], qual[i]) for i in range(len(t_utc))]
-    return GPSFixes.collect(rows, skipped, "rtklib", path.name)
+    fixes = GPSFixes.collect(rows, skipped, "rtklib", path.name)
+    if layout in ("llh", "dms") and any("height=wgs84/geodetic" in h.lower() for h in header):
+        fixes.height_datum = "egm96"  # out-height = geodetic: RTKLIB's geoid, EGM96 by default
+    return fixes
 
 
 def _positions(layout: str, pos: np.ndarray, sd: np.ndarray, base: np.ndarray | None):

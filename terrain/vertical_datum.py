@@ -1,0 +1,181 @@
+"""Heights on a geoid and on the WGS 84 ellipsoid: the geoid's undulation ``N`` from PROJ's grids.
+
+A GNSS receiver measures ellipsoidal heights ``h``; topographic maps, SRTM / NASADEM / ASTER
+(EGM96) and Copernicus GLO-30 (EGM2008) give orthometric heights ``H`` above a geoid, and
+consumer receivers write such heights into GPX ``ele`` and NMEA's altitude. They differ by
+the geoid's undulation, ``h = H + N`` (tens of metres: -107 to +85 m on Earth), which varies
+slowly (centimetres per kilometre). glacimap's maps are in the rover's ellipsoidal heights
+(:data:`terrain.product.VERTICAL_DATUM`); a height stated above a geoid is carried to the
+ellipsoid here, never silently.
+
+``N`` is read from the geoid's grid through PROJ's ``vgridshift`` (bilinear interpolation).
+The grids are not in pyproj's wheel; they are looked for, under PROJ's CDN name and the older
+``.gtx`` name, in ``$PROJ_DATA`` / ``$PROJ_LIB``, pyproj's data and user folders and the
+system's PROJ folders (Debian's ``proj-data``, which GDAL's packages pull in, ships
+``egm96_15.gtx``). A geoid whose grid is not found is an :class:`~terrain.errors.InputError`
+naming the file and where to put it.
+
+Reference values: NGA's EGM96 test points (``N`` from the 15' grid, e.g. 38.6281550 N,
+269.7791550 E: -31.628 m); PROJ's bilinear interpolation agrees within 6 cm
+(``tests/test_vertical_datum.py``).
+"""
+
+from __future__ import annotations
+
+import os
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import bad_input
+
+__all__ = [
+    "GEOIDS",
+    "HEIGHT_DATUMS",
+    "ellipsoidal_height",
+    "geoid_grid",
+    "geoid_height",
+    "height_datum_option",
+]
+
+#: Geoid models glacimap can apply: their grid files (PROJ CDN name first) and the vertical
+#: CRS of heights above them.
+GEOIDS: dict[str, dict[str, Any]] = {
+    "egm96": {
+        "grids": ("us_nga_egm96_15.tif", "egm96_15.gtx"),
+        "crs": "EPSG:5773",
+        "name": "EGM96 (SRTM, NASADEM, ASTER GDEM; most GPS receivers' sea level)",
+        "fix": "install Debian's proj-data package (it ships egm96_15.gtx), or put "
+        "us_nga_egm96_15.tif from https://cdn.proj.org into $PROJ_DATA",
+    },
+    "egm2008": {
+        "grids": ("us_nga_egm08_25.tif", "egm08_25.gtx"),
+        "crs": "EPSG:3855",
+        "name": "EGM2008 (Copernicus GLO-30 / GLO-90)",
+        "fix": "put us_nga_egm08_25.tif from https://cdn.proj.org (or projsync --file "
+        "us_nga_egm08_25.tif) into $PROJ_DATA or ~/.local/share/proj",
+    },
+}
+
+#: What a height can be stated as: above the WGS 84 ellipsoid or above one of :data:`GEOIDS`.
+HEIGHT_DATUMS = ("ellipsoidal", *GEOIDS)
+
+_SYSTEM_DIRS = ("/usr/share/proj", "/usr/local/share/proj", "/opt/homebrew/share/proj")
+
+
+def _search_dirs() -> list[Path]:
+    import pyproj.datadir
+
+    dirs: list[str] = []
+    for var in ("PROJ_DATA", "PROJ_LIB"):
+        dirs += [d for d in os.environ.get(var, "").split(os.pathsep) if d]
+    for get in (pyproj.datadir.get_data_dir, pyproj.datadir.get_user_data_dir):
+        try:
+            dirs += get().split(os.pathsep)
+        except Exception:  # pragma: no cover - pyproj without a data folder
+            pass
+    dirs += list(_SYSTEM_DIRS)
+    return [Path(d) for d in dict.fromkeys(dirs)]
+
+
+def height_datum_option(value: Any, field: str, allow_auto: bool = False) -> str:
+    """``value`` as one of :data:`HEIGHT_DATUMS` (case-insensitive; ``"auto"`` too when
+    ``allow_auto``), else an :class:`InputError` naming ``field``."""
+    text = str(value).strip().lower()
+    allowed = ("auto", *HEIGHT_DATUMS) if allow_auto else HEIGHT_DATUMS
+    if text not in allowed:
+        raise bad_input(field, value, " / ".join(allowed), f"e.g. {field} egm96")
+    return text
+
+
+def geoid_grid(geoid: str, field: str = "geoid") -> Path:
+    """The grid file of ``geoid`` (a key of :data:`GEOIDS`) on this machine.
+
+    Raises
+    ------
+    InputError
+        An unknown geoid, or none of its grid files in PROJ's folders (the message names the
+        file, the folders searched and the fix).
+    """
+    geoid = height_datum_option(geoid, field)
+    if geoid == "ellipsoidal":
+        raise bad_input(field, geoid, "a geoid (" + " / ".join(GEOIDS) + ")", "")
+    names = GEOIDS[geoid]["grids"]
+    dirs = _search_dirs()
+    for d in dirs:
+        for name in names:
+            if (d / name).is_file():
+                return d / name
+    raise bad_input(
+        field,
+        geoid,
+        f"the {geoid.upper()} grid ({' or '.join(names)}) in one of PROJ's folders "
+        f"({', '.join(str(d) for d in dirs)})",
+        GEOIDS[geoid]["fix"],
+    )
+
+
+@lru_cache(maxsize=4)
+def _undulation(grid: str):
+    from pyproj import Transformer
+
+    # Z_target = Z_source + multiplier x grid value: from Z = 0, the grid's N itself
+    return Transformer.from_pipeline(
+        "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad "
+        f"+step +proj=vgridshift +grids={grid} +multiplier=1 "
+        "+step +proj=unitconvert +xy_in=rad +xy_out=deg"
+    )
+
+
+def geoid_height(
+    lon_deg: Any, lat_deg: Any, geoid: str = "egm96", field: str = "geoid"
+) -> np.ndarray:
+    """The geoid's undulation ``N`` above the WGS 84 ellipsoid at WGS 84 longitude, latitude.
+
+    Parameters
+    ----------
+    lon_deg, lat_deg : array_like, shape (n,)
+        WGS 84 longitude and latitude, degrees.
+    geoid : str
+        A key of :data:`GEOIDS`.
+    field : str
+        The option or setting that named the geoid (for errors).
+
+    Returns
+    -------
+    ndarray of shape (n,)
+        ``N``, metres (``h = H + N``).
+    """
+    lon = np.atleast_1d(np.asarray(lon_deg, float))
+    lat = np.atleast_1d(np.asarray(lat_deg, float))
+    grid = geoid_grid(geoid, field)
+    _, _, n = _undulation(str(grid)).transform(lon, lat, np.zeros_like(lon), errcheck=False)
+    n = np.asarray(n, float)
+    bad = ~np.isfinite(n) | (np.abs(n) > 200.0)  # outside the grid: PROJ gives inf
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise bad_input(
+            field,
+            f"{geoid} at lon {lon[i]:.6f}, lat {lat[i]:.6f}",
+            "a position the geoid grid covers",
+            f"check the grid file {grid}",
+        )
+    return n
+
+
+def ellipsoidal_height(
+    height_m: Any,
+    lon_deg: Any,
+    lat_deg: Any,
+    datum: str,
+    field: str = "heights",
+) -> np.ndarray:
+    """Heights stated on ``datum`` (``"ellipsoidal"`` or a geoid) as WGS 84 ellipsoidal
+    heights, metres: ``h = H + N``."""
+    datum = height_datum_option(datum, field)
+    h = np.asarray(height_m, float)
+    if datum == "ellipsoidal":
+        return h.copy()
+    return h + geoid_height(lon_deg, lat_deg, datum, field).reshape(h.shape)
