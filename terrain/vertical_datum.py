@@ -34,10 +34,13 @@ from .errors import bad_input
 __all__ = [
     "GEOIDS",
     "HEIGHT_DATUMS",
+    "dem_height_datum",
     "ellipsoidal_height",
     "geoid_grid",
     "geoid_height",
     "height_datum_option",
+    "lattice_geoid_height",
+    "split_vertical",
 ]
 
 #: Geoid models glacimap can apply: their grid files (PROJ CDN name first) and the vertical
@@ -179,3 +182,56 @@ def ellipsoidal_height(
     if datum == "ellipsoidal":
         return h.copy()
     return h + geoid_height(lon_deg, lat_deg, datum, field).reshape(h.shape)
+
+
+def split_vertical(crs: Any) -> tuple[Any, str | None]:
+    """``(horizontal CRS, height datum)`` of a raster's CRS: a compound CRS with a geoid's
+    height (e.g. ``EPSG:32632+5773``) gives that geoid's key of :data:`GEOIDS`, a 3-D
+    geographic CRS (EPSG:4979) ``"ellipsoidal"``, anything else ``None`` (not stated).
+
+    Raises
+    ------
+    InputError
+        A compound CRS whose heights are on another vertical datum (NAVD88, EVRF2007...).
+    """
+    from pyproj import CRS
+
+    crs = CRS.from_user_input(crs)
+    if not crs.is_compound:
+        return crs, ("ellipsoidal" if crs.is_geographic and len(crs.axis_info) == 3 else None)
+    horizontal, vertical = crs.sub_crs_list[0], crs.sub_crs_list[-1]
+    code = vertical.to_string()
+    for key, g in GEOIDS.items():
+        if g["crs"] == code:
+            return horizontal, key
+    raise bad_input(
+        "vertical CRS",
+        f"{vertical.name} ({code})",
+        "heights on the ellipsoid or above "
+        + " / ".join(f"{k.upper()} ({g['crs']})" for k, g in GEOIDS.items()),
+        "convert the DEM's heights (e.g. gdalwarp -t_srs EPSG:4326+5773), or drop the "
+        "vertical CRS and state the datum with the command's heights option",
+    )
+
+
+def dem_height_datum(attrs: dict[str, Any]) -> str | None:
+    """The height datum a DEM's attributes state: ``height_datum`` (set by a reader from a
+    compound CRS), else a glacimap product's ``vertical_datum`` words; ``None`` if neither
+    says."""
+    if attrs.get("height_datum"):
+        return str(attrs["height_datum"])
+    text = str(attrs.get("vertical_datum") or "").lower()
+    if "ellipsoid" in text and ("no geoid" in text or "geoid" not in text):
+        return "ellipsoidal"
+    return next((k for k in GEOIDS if k in text.replace("-", "").replace(" ", "")), None)
+
+
+def lattice_geoid_height(x: Any, y: Any, crs: Any, geoid: str, field: str = "geoid") -> np.ndarray:
+    """The geoid's undulation ``N`` (m) at every cell centre of a lattice: ``x`` (nx,) and
+    ``y`` (ny,) in ``crs`` (projected or geographic), shape ``(ny, nx)``."""
+    from pyproj import CRS, Transformer
+
+    xx, yy = np.meshgrid(np.asarray(x, float), np.asarray(y, float))
+    to_ll = Transformer.from_crs(CRS.from_user_input(crs), "EPSG:4326", always_xy=True)
+    lon, lat = to_ll.transform(xx.ravel(), yy.ravel())
+    return geoid_height(lon, lat, geoid, field).reshape(xx.shape)

@@ -156,3 +156,47 @@ def test_write_cog_named_bands_round_trip(tmp_path):
         assert src.overviews(1) == [2]  # 24 x 32 cells: 12 >= 8 pixels at 2, 6 < 8 at 4
     with pytest.raises(InputError, match="elevation"):
         write_cog(ds, tmp_path / "d.tif", bands=[("elevation", "x")])
+
+
+def test_a_dem_in_geoid_heights_is_carried_to_the_maps_datum(tmp_path):
+    # BEFORE: a glacimap map (ellipsoidal heights, said by its vertical_datum). AFTER: the
+    # same ground, unchanged, as a GeoTIFF in EGM96 heights (H = h - N, N ~ +3.4 m here),
+    # its compound CRS saying so. Without co-registration a change that ignored the datum
+    # reads ~ -3.4 m of thinning; carried to the ellipsoid it reads ~0.
+    from terrain.vertical_datum import lattice_geoid_height
+
+    truth = default_site(resolution=10.0)
+    g = Grid.from_dataarray(truth)
+    n = lattice_geoid_height(g.x, g.y, g.crs, "egm96")
+    assert 3.0 < n.mean() < 4.0
+    std = np.full(g.shape, 0.05)
+    terrain_dataset(g, truth.values, std, {"seed": 1}).to_netcdf(tmp_path / "b.nc", engine="scipy")
+    profile = dict(driver="GTiff", height=g.ny, width=g.nx, count=1, dtype="float64",
+                   transform=g.transform)  # fmt: skip
+    for name, crs in (("a96.tif", "EPSG:32608+5773"), ("a.tif", "EPSG:32608")):
+        with rasterio.open(tmp_path / name, "w", crs=crs, **profile) as dst:
+            dst.write(truth.values - n, 1)
+    gpkg = _write_polygon(tmp_path / "glacier.gpkg", default_outline(DEFAULT_SITE_BOUNDS))
+
+    def change(after, *extra):
+        out = tmp_path / f"out_{after}_{len(extra)}"
+        res = runner.invoke(app, ["change", str(tmp_path / "b.nc"), str(tmp_path / after),
+                                  "--outline", str(gpkg), "--no-coregister", "--out", str(out),
+                                  *extra])  # fmt: skip
+        return res, out
+
+    res, out = change("a96.tif")
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    assert abs(vol["mean_dh_m"]) < 0.01  # h = H + N: the geoid's shift gone
+    assert any("above EGM96 carried to BEFORE's (the ellipsoid)" in t for t in vol["notes"])
+    res, out = change("a.tif")  # no datum stated: taken as BEFORE's, and said
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    assert vol["mean_dh_m"] == pytest.approx(-n.mean(), abs=0.05)
+    assert any("AFTER states no vertical datum" in t for t in vol["notes"])
+    res, out = change("a.tif", "--heights-after", "egm96")  # the user says it
+    vol = json.loads((out / "volume.json").read_text())
+    assert res.exit_code == 0 and abs(vol["mean_dh_m"]) < 0.01
+    res, out = change("a96.tif", "--heights-after", "ellipsoidal")  # contradicts the file
+    assert "--heights-after" in str(res.exception) and not out.exists()

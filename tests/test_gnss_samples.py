@@ -140,7 +140,7 @@ def test_gpx_without_dop_takes_the_kinds_uere_and_its_utm_zone(tmp_path):
 def test_heights_are_carried_to_the_ellipsoid(tmp_path):
     # GPX ele (sea level, as receivers write it) and an RTKLIB solution in geodetic heights
     # get EGM96's N back; an NMEA GGA without its separation is read as stated and counted;
-    # --gnss-heights says otherwise. N here (58.4 N, 135 W) is ~ +6.6 m: no small offset.
+    # --gnss-heights says otherwise. N here (59.5 N, 135 W) is ~ +6.5 m: no small offset.
     xy = _profile(n_lines=1, step=10.0)
     h = _surface(*xy.T)
     lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])

@@ -52,6 +52,14 @@ def read_dem(path: Path, field: str):
         raise bad_input(field, str(path), "a raster GDAL can read", str(exc)) from exc
     if crs is None or t.b != 0 or t.d != 0 or t.e >= 0:
         raise bad_input(field, str(path), "a north-up raster with a CRS", "warp it first")
+    from rasterio.crs import CRS as RioCRS
+
+    from terrain.vertical_datum import split_vertical
+
+    horizontal, datum = split_vertical(crs.to_wkt())  # a compound CRS states the heights
+    crs = RioCRS.from_wkt(horizontal.to_wkt())
+    if datum is not None:
+        tags = {**tags, "height_datum": datum}
     data = {"elevation": (("y", "x"), bands[0])}
     if "elevation_std" in desc:
         data["elevation_std"] = (("y", "x"), bands[desc.index("elevation_std")])
@@ -116,6 +124,17 @@ def change_command(
         Path | None,
         typer.Option(help="Prior DEM of AFTER's mean, if not where the product recorded it."),
     ] = None,
+    heights_before: Annotated[
+        str | None,
+        typer.Option(
+            help="What BEFORE's heights are above, when it does not say: ellipsoidal, egm96 "
+            "(SRTM, NASADEM, ASTER), egm2008 (GLO-30). Default: the DEM's own statement "
+            "(a glacimap product: ellipsoidal; a compound CRS)."
+        ),
+    ] = None,
+    heights_after: Annotated[
+        str | None, typer.Option(help="The same for AFTER; it is carried to BEFORE's datum.")
+    ] = None,
     density: Annotated[float, typer.Option(help="Volume-to-mass density, kg m^-3.")] = 850.0,
     density_std: Annotated[float, typer.Option(help="1-sigma of the density.")] = 60.0,
     seed: Annotated[int, typer.Option(help="Seed of the variogram's pair subsample.")] = 0,
@@ -152,6 +171,7 @@ def change_command(
     where_a = locate_product(after, samples_after, "AFTER")
     b = read_dem(where_b.raster, "BEFORE")
     a = read_dem(where_a.raster, "AFTER")
+    a, note_h = same_heights(b, a, heights_before, heights_after)  # one vertical datum
     crs, _ = change_crs(b, a)  # the CRS dh is mapped in (a DEM in degrees is projected)
     glacier, note_o = read_polygons(outline, "--outline", crs)
     stable_geom, note_s = (None, "")
@@ -194,7 +214,9 @@ def change_command(
                 "samples_before": None if where_b.samples is None else str(where_b.samples),
                 "samples_after": None if where_a.samples is None else str(where_a.samples),
             },
-            "notes": [n for n in (note_o, note_s, diff.attrs["reprojection"], horizontal) if n],
+            "notes": [
+                n for n in (note_h, note_o, note_s, diff.attrs["reprojection"], horizontal) if n
+            ],
             "coregistration": json.loads(diff.attrs["coregistration"])
             if diff.attrs["coregistration"] != "none"
             else None,
@@ -204,6 +226,8 @@ def change_command(
         }
         write_volume_tables(vc, tmp / FILES["json"], tmp / FILES["csv"], **extra)
         write_change_report(tmp / FILES["report"], diff, vc, glacier, profile, breaklines=lines)
+    if note_h:
+        console.print(f"[yellow]heights:[/] {note_h}")
     console.print(f"route: {route} ({route_reason})")
     if horizontal:
         console.print(f"[yellow]note:[/] {horizontal}")
@@ -217,6 +241,67 @@ def change_command(
     )
     console.print(
         f"wrote {', '.join(FILES.values())} in {out_dir} ({time.perf_counter() - t0:.1f} s)"
+    )
+
+
+def same_heights(b: Any, a: Any, given_b: str | None, given_a: str | None) -> tuple[Any, str]:
+    """AFTER in BEFORE's vertical datum, and in words what was done.
+
+    Each DEM's datum is what it states (:func:`terrain.vertical_datum.dem_height_datum`: a
+    glacimap product is ellipsoidal, a compound CRS names its geoid), else the option given
+    (an option contradicting a DEM's own statement is an error). When both are known and
+    differ, AFTER's elevation gets ``N_after - N_before`` (the geoids' undulations at its
+    cells; 0 for the ellipsoid): a DEM in EGM96 heights against a glacimap map differs by
+    N, tens of metres, which a change without co-registration would read as thinning."""
+    import xarray as xr
+
+    from terrain.grid import dataarray_crs
+    from terrain.vertical_datum import (
+        GEOIDS,
+        dem_height_datum,
+        height_datum_option,
+        lattice_geoid_height,
+    )
+
+    datums = []
+    for ds, given, name in ((b, given_b, "before"), (a, given_a, "after")):
+        stated = dem_height_datum(ds.attrs)
+        field = f"--heights-{name}"
+        given = None if given is None else height_datum_option(given, field)
+        if given is not None and stated is not None and given != stated:
+            raise bad_input(
+                field, given, f"the datum {name.upper()} states itself ({stated})", "drop it"
+            )
+        datums.append(given or stated)
+    db, da = datums
+    if db is None and da is None:
+        return a, ""  # both as stored: one datum, as every change before
+    if db is None or da is None:
+        known, unknown = ("BEFORE", "AFTER") if da is None else ("AFTER", "BEFORE")
+        return a, (
+            f"{unknown} states no vertical datum: taken as {known}'s ({db or da}); if it is "
+            f"not, pass --heights-{unknown.lower()} (SRTM, NASADEM, ASTER: egm96; GLO-30: "
+            "egm2008; glacimap maps, ArcticDEM, REMA: ellipsoidal)"
+        )
+    if db == da:
+        return a, f"both DEMs in {db} heights"
+    crs = dataarray_crs(a)
+    x, y = a["x"].values, a["y"].values  # AFTER's own cell centres, in its own order
+
+    def undulation(datum: str) -> np.ndarray:
+        if datum == "ellipsoidal":
+            return np.zeros((y.size, x.size))
+        return lattice_geoid_height(x, y, crs, datum, "--heights-after")
+
+    shift = undulation(da) - undulation(db)  # h = H + N: into BEFORE's datum
+    out = a.copy()
+    out["elevation"] = a["elevation"] + xr.DataArray(shift, dims=("y", "x"))
+    out.attrs = {**a.attrs, "height_datum": db}
+    words = {k: k.upper() for k in GEOIDS} | {"ellipsoidal": "the ellipsoid"}
+    return out, (
+        f"AFTER's heights above {words[da]} carried to BEFORE's ({words[db]}): "
+        f"{float(np.mean(shift)):+.2f} m on average ({float(np.min(shift)):+.2f} to "
+        f"{float(np.max(shift)):+.2f} m)"
     )
 
 
