@@ -34,6 +34,7 @@ from terrain.validation import json_safe as _clean
 
 from .breakline_record import breakline_block
 from .certify_bias import bias_assessment
+from .certify_heights import checkpoints_in_dem_datum
 from .certify_heldout import heldout_block
 from .certify_io import (
     Checkpoints,
@@ -226,6 +227,8 @@ def certify(
     crs: Any = None,
     created: str | None = None,
     heldout: CrossValidation | Mapping[str, Any] | None = None,
+    dem_heights: str | None = None,
+    checkpoint_heights: str | None = None,
 ) -> dict[str, Any]:
     """Certify the vertical accuracy of ``dem`` against ``checkpoints``.
 
@@ -255,6 +258,11 @@ def certify(
     heldout : terrain.CrossValidation or its ``to_dict()``, optional
         Spatial block cross-validation of the map's GP (:func:`terrain.cross_validate`):
         adds the ``heldout_calibration`` block (:func:`heldout_block`). Default: none.
+    dem_heights, checkpoint_heights : str, optional
+        What the DEM's / the checkpoints' heights are above where they do not state it
+        (``"ellipsoidal"``, ``"egm96"``, ``"egm2008"``); both known and different: the
+        checkpoints are carried to the DEM's datum (:mod:`toolkit.certify_heights`,
+        recorded as ``checkpoints.heights``).
 
     Returns
     -------
@@ -282,6 +290,7 @@ def certify(
     heldout_cal = None if heldout is None else heldout_block(heldout)  # fail before any work
     raster = read_dem(dem)
     cps = as_checkpoints(checkpoints, crs)
+    cps, heights = checkpoints_in_dem_datum(cps, raster, dem_heights, checkpoint_heights)
     xy, reprojected, nan, unprojectable, outside = place_checkpoints(cps, raster.grid)
     dem_z = np.full(cps.n, np.nan)
     cand = ~nan & ~unprojectable & ~outside
@@ -368,7 +377,8 @@ def certify(
             "area_km2": area_km2,
             "has_std_band": raster.elevation_std is not None,
             **_geographic_note(g),
-            "vertical_datum": raster.provenance.get("vertical_datum", "not stated by the DEM"),
+            "vertical_datum": raster.provenance.get("vertical_datum")
+            or (f"heights above {heights['dem']}" if heights["dem"] else "not stated by the DEM"),
             "provenance": raster.provenance,
         },
         "checkpoints": {
@@ -389,6 +399,7 @@ def certify(
                 "nodata": _dropped(nodata),
             },
             "has_z_std": cps.z_std is not None,
+            "heights": heights,
         },
         "parameters": {
             "contour_interval_m": contour_interval_m,

@@ -83,6 +83,20 @@ def certify_command(
         str | None, typer.Option(help="CRS of the checkpoints if the file names none.")
     ] = None,
     feature: Annotated[str, typer.Option(help="ASPRS 1990 feature: contour or spot.")] = "contour",
+    dem_heights: Annotated[
+        str | None,
+        typer.Option(
+            help="What the DEM's heights are above if it does not say (its compound CRS, a "
+            "glacimap product): ellipsoidal, egm96 (SRTM, NASADEM, ASTER), egm2008 (GLO-30)."
+        ),
+    ] = None,
+    checkpoint_heights: Annotated[
+        str | None,
+        typer.Option(
+            help="The same for the checkpoints (stated by a compound or 3-D crs, e.g. "
+            "EPSG:4979); carried to the DEM's datum when both are known."
+        ),
+    ] = None,
 ) -> None:
     """Certify a DEM's vertical accuracy against independent checkpoints: RMSE_z with a
     bootstrap 95 % CI, bias, NSSDA Accuracy_z, the contour interval it supports and a verdict
@@ -100,7 +114,10 @@ def certify_command(
         n_boot=n_boot,
         feature=feature,
         crs=crs,
+        dem_heights=dem_heights,
+        checkpoint_heights=checkpoint_heights,
     )
+    console.print(f"heights: {cert['checkpoints']['heights']['note']}")
     print_certificate(cert)
     if out is not None:
         console.print(f"wrote {write_certificate(cert, out)}")
