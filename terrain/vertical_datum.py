@@ -40,6 +40,7 @@ __all__ = [
     "geoid_height",
     "height_datum_option",
     "lattice_geoid_height",
+    "product_in_datum",
     "split_vertical",
 ]
 
@@ -235,3 +236,67 @@ def lattice_geoid_height(x: Any, y: Any, crs: Any, geoid: str, field: str = "geo
     to_ll = Transformer.from_crs(CRS.from_user_input(crs), "EPSG:4326", always_xy=True)
     lon, lat = to_ll.transform(xx.ravel(), yy.ravel())
     return geoid_height(lon, lat, geoid, field).reshape(xx.shape)
+
+
+def product_in_datum(ds: Any, datum: str, field: str = "--heights") -> tuple[Any, str]:
+    """A terrain product (``xarray.Dataset`` with ``elevation``) with its heights on
+    ``datum``, and in words what was done.
+
+    The product's own datum is :func:`dem_height_datum` of its attributes (a glacimap map:
+    ellipsoidal). ``elevation`` gets ``N_own - N_datum`` at each cell; the 1-sigma bands are
+    kept (the geoid model's own error, decimetres, is not in them: said in
+    ``vertical_datum``); ``height_datum`` and ``vertical_datum`` say the new datum.
+
+    Raises
+    ------
+    InputError
+        An unknown ``datum``, or a product that does not state its own.
+    """
+    import xarray as xr
+
+    from .grid import dataarray_crs
+
+    datum = height_datum_option(datum, field)
+    own = dem_height_datum(ds.attrs)
+    if own is None:
+        raise bad_input(
+            field,
+            datum,
+            "a product that states its heights' datum (attrs vertical_datum / height_datum)",
+            "set the product's height_datum attribute first",
+        )
+    if own == datum:
+        return ds, f"heights already above {_words(datum)}"
+    crs = dataarray_crs(ds)
+    x, y = ds["x"].values, ds["y"].values
+
+    def undulation(d: str) -> np.ndarray:
+        if d == "ellipsoidal":
+            return np.zeros((y.size, x.size))
+        return lattice_geoid_height(x, y, crs, d, field)
+
+    shift = undulation(own) - undulation(datum)  # h = H + N
+    out = ds.copy()
+    out["elevation"] = ds["elevation"] + xr.DataArray(shift, dims=("y", "x"))
+    out["elevation"].attrs = dict(ds["elevation"].attrs)
+    words = (
+        "ellipsoidal height above the WGS 84 ellipsoid"
+        if datum == "ellipsoidal"
+        else f"orthometric height above {datum.upper()}"
+    )
+    out.attrs = {
+        **ds.attrs,
+        "height_datum": datum,
+        "vertical_datum": f"{words} (from the map's heights above {_words(own)} with the "
+        "geoid's undulation; the geoid model's own error is not in elevation_std)",
+    }
+    note = (
+        f"heights carried from {_words(own)} to {_words(datum)}: "
+        f"{float(np.mean(shift)):+.2f} m on average ({float(np.min(shift)):+.2f} to "
+        f"{float(np.max(shift)):+.2f} m)"
+    )
+    return out, note
+
+
+def _words(datum: str) -> str:
+    return "the WGS 84 ellipsoid" if datum == "ellipsoidal" else datum.upper()

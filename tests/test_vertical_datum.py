@@ -63,3 +63,50 @@ def test_field_gps_heights_above_a_geoid_are_carried_to_the_ellipsoid():
     np.testing.assert_allclose(msl[:, 2] - ell[:, 2], vd.geoid_height(lon, lat))
     with pytest.raises(InputError, match="gps crs.*EGM96 \\(EPSG:5773\\)"):
         project_fixes(fixes, "EPSG:4326+5703", "EPSG:32608")  # NAVD88: not a geoid we carry
+
+
+def test_export_writes_the_map_above_egm96(tmp_path):
+    # The default site as a glacimap map (ellipsoidal) exported above EGM96: the COG's
+    # elevation is the map's less N at each cell (N by pyproj's CRS transform), its
+    # 1-sigma band unchanged, its metadata saying so; a product back at its own datum is
+    # itself; a bad name or a product without a datum: InputError, nothing written.
+    import rasterio
+    from pyproj import Transformer
+    from typer.testing import CliRunner
+
+    from terrain import Grid, default_site
+    from terrain.product import terrain_dataset
+    from toolkit.cli import app
+
+    truth = default_site(resolution=20.0)
+    g = Grid.from_dataarray(truth)
+    ds = terrain_dataset(g, truth.values, np.full(g.shape, 0.3), {"seed": 3})
+    nc = tmp_path / "product.nc"
+    ds.to_netcdf(nc, engine="scipy")
+    out = tmp_path / "out"
+    r = CliRunner().invoke(app, ["export", str(nc), "--heights", "EGM96", "--no-mesh",
+                                 "--interval", "5", "--out", str(out)])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    assert "heights carried from the WGS 84 ellipsoid to EGM96" in " ".join(r.output.split())
+    xx, yy = np.meshgrid(g.x, g.y)
+    lon, lat = Transformer.from_crs(g.crs, "EPSG:4326", always_xy=True).transform(xx, yy)
+    import pyproj.datadir
+
+    pyproj.datadir.append_data_dir("/usr/share/proj")
+    to_msl = Transformer.from_crs("EPSG:4979", "EPSG:4326+5773", always_xy=True)
+    msl = np.asarray(to_msl.transform(lon, lat, truth.values)[2])  # H = h - N
+    with rasterio.open(out / "elevation.tif") as src:
+        np.testing.assert_allclose(src.read(1), msl, atol=1e-3)  # float32 band
+        np.testing.assert_allclose(src.read(2), 0.3, atol=1e-6)
+        assert "orthometric height above EGM96" in src.tags()["vertical_datum"]
+    same, note = vd.product_in_datum(ds, "ellipsoidal")
+    assert same is ds and "already" in note
+    back, _ = vd.product_in_datum(vd.product_in_datum(ds, "egm96")[0], "ellipsoidal")
+    np.testing.assert_allclose(back["elevation"].values, ds["elevation"].values, atol=1e-9)
+    never = tmp_path / "never"
+    r = CliRunner().invoke(app, ["export", str(nc), "--heights", "msl", "--out", str(never)])
+    assert isinstance(r.exception, InputError) and not never.exists()
+    bare = ds.copy()
+    bare.attrs = {k: v for k, v in ds.attrs.items() if k != "vertical_datum"}
+    with pytest.raises(InputError, match="--heights.*states its heights' datum"):
+        vd.product_in_datum(bare, "egm96")

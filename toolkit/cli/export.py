@@ -91,6 +91,13 @@ def export_command(
         bool, typer.Option(help="Also write the contours as GeoJSON (lon/lat).")
     ] = True,
     mesh: Annotated[bool, typer.Option(help="Write the mesh (PLY, VTP, PNG).")] = True,
+    heights: Annotated[
+        str | None,
+        typer.Option(
+            help="Write heights above: ellipsoidal, egm96 (SRTM's, most maps' sea level) or "
+            "egm2008 (GLO-30). Default: as the product is (glacimap maps: ellipsoidal)."
+        ),
+    ] = None,
 ) -> None:
     """Export a terrain map: Cloud-Optimized GeoTIFF (elevation + 1-sigma bands), contour
     lines (GeoPackage, GeoJSON) and a mesh with per-vertex 1-sigma (PLY, VTP, PNG render);
@@ -102,9 +109,20 @@ def export_command(
         raise bad_input("--interval", interval, "a positive contour interval in metres", "")
     if not (np.isfinite(exaggeration) and exaggeration > 0):
         raise bad_input("--exaggeration", exaggeration, "a positive factor", "e.g. 3")
+    if heights is not None:  # a bad name fails before the product is read
+        from terrain.vertical_datum import height_datum_option
+
+        heights = height_datum_option(heights, "--heights")
     ds = _open_product(product)
+    heights_note = None
+    if heights is not None:  # every layer in that datum (terrain.vertical_datum)
+        from terrain.vertical_datum import product_in_datum
+
+        ds, heights_note = product_in_datum(ds, heights)
     out_dir = ensure_writable_dir(out)
     summary: dict = {"product": str(product), "seed": ds.attrs.get("seed")}
+    if heights_note:
+        summary["heights"] = heights_note
     summary["contour_interval_basis"] = basis
     with console.status("writing the Cloud-Optimized GeoTIFF..."):
         summary["cog"] = str(write_cog(ds, out_dir / FILES["cog"]))
@@ -143,5 +161,7 @@ def export_command(
             + ", ".join(m["paths"])
         )
     console.print(f"heights: {c['vertical_datum']}")
+    if heights_note:
+        console.print(f"heights: {heights_note}")
     console.print(f"contour interval: {basis}")
     console.print(f"wrote {out_dir / FILES['summary']}")
