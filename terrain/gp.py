@@ -32,6 +32,7 @@ from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
 from .kernels import Kernel
 from .linalg import cholesky_jitter, single_blas_thread
+from .long_halo import predict_long_halo
 from .microscale import microscale_part, windowed_part
 from .prior import as_mean_function
 from .product import gp_provenance, terrain_dataset
@@ -95,7 +96,8 @@ class TerrainGP(HyperparameterMixin):
         ``"auto"``: exact up to ``exact_max_samples`` samples (3x with a long-scale kernel
         part), tiled above (:mod:`terrain.tiled`), and tiled from 1,000 samples when
         ``local_amplitude="auto"`` turns amplitudes on; a big grid gets the exact mean and the
-        variance on a lattice (:mod:`terrain.coarse_variance`) or, tileable, the tiled GP.
+        variance on a lattice (:mod:`terrain.coarse_variance`), from tiles (tileable), or
+        from tiles sized by the kernel's long part (:mod:`terrain.long_halo`).
     tiles : TileSpec, optional
         Tile geometry of the tiled GP; default scaled to the shortest length scale.
     local_amplitude : bool or "auto"
@@ -413,15 +415,15 @@ class TerrainGP(HyperparameterMixin):
             raise bad_input("xy", xy.shape, "finite query points of shape (m, 2)", "")
         m = xy.shape[0]
         cov = getattr(self, "coef_cov_", None)
-        # The exact variance costs n^2 per query (R&W Alg. 2.1 line 5): "auto" tiles big grids.
-        # Not with a long-scale part: tiles revert to the mean in gaps (docs/terrain.md).
+        # The exact variance costs n^2 per query (R&W Alg. 2.1 line 5): "auto" tiles big grids;
+        # a long-scale part: the default tiles revert to the mean in gaps (docs/terrain.md).
         big = return_std and self.samples_.n**2 * m > EXACT_PREDICT_FLOPS
         tileable = long_scale_part(self.kernel_, self.tiles_.halo) is None
-        self.predict_route_ = (
-            "tiled"
-            if self.method_ == "tiled" or (big and tileable and self.method == "auto")
-            else "exact"
-        )
+        tiled = self.method_ == "tiled" or (big and tileable and self.method == "auto")
+        self.predict_route_ = "tiled" if tiled else "exact"
+        long = big and not tileable and self.method == "auto"  # exact mean, tiled 1-sigma:
+        if long and (done := predict_long_halo(self, xy, include_nugget)) is not None:
+            return done  # terrain/long_halo.py (sets predict_route_ and tile_stats_)
         if self.predict_route_ == "tiled":
             resid_mean, std, stats = predict_tiled(
                 self._kernel_xy(xy),

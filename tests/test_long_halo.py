@@ -1,0 +1,75 @@
+"""Exact mean, tiled 1-sigma with a halo of three long length scales (``terrain.long_halo``).
+
+Reference: the same fitted GP predicted on the exact route (``method="exact"``, R&W Alg.
+2.1), which the long-halo route must equal in its mean (it is the exact mean) and match in
+its 1-sigma: each tile conditions on every sample within 3 long length scales (a subset of
+the data never gives a smaller posterior variance; the constant mean's GLS term, computed
+per tile, moves it by up to 0.1 % either way).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import terrain.gp as gp_module
+from terrain import ElevationSamples, Grid, SquaredExponential, TerrainGP
+from terrain.tiled import TileSpec, long_scale_part
+
+#: A long part whose 3-scale halo (180 m) is beyond the default tiles' MAX_HALO (150 m).
+KERNEL = SquaredExponential(variance=4.0, lengthscale=60.0) + SquaredExponential(
+    variance=0.1, lengthscale=5.0
+)
+
+
+def _lines(seed=0):
+    """Four north-south lines 50-100 m apart, a sample every 4 m, on a smooth surface."""
+    rng = np.random.default_rng(seed)
+    y = np.arange(0.0, 300.0, 4.0)
+    xy = np.vstack([np.column_stack([np.full(y.size, x), y]) for x in (25.0, 125.0, 225.0, 275.0)])
+    z = 100 + np.sin(xy[:, 0] / 40.0) * 3 + np.cos(xy[:, 1] / 55.0) * 2
+    z = z + rng.normal(0, 0.05, len(z))
+    return ElevationSamples(xy, z, 0.05**2, crs="EPSG:32608")
+
+
+def _fit(samples, **kw):
+    return TerrainGP(kernel=KERNEL, optimize=False, nugget=1e-4, seed=0, **kw).fit(samples)
+
+
+def test_long_halo_route_matches_the_exact_gp(monkeypatch):
+    s = _lines()
+    grid = Grid(0.0, 300.0, (3.0, 3.0), (100, 100), "EPSG:32608")
+    q = grid.xy()
+    exact = _fit(s, method="exact")
+    m_ex, s_ex = exact.predict(q, return_std=True)
+    monkeypatch.setattr(gp_module, "EXACT_PREDICT_FLOPS", 1e6)  # this grid counts as big
+    gp = _fit(s)
+    assert gp.method_ == "exact" and long_scale_part(gp.kernel_, gp.tiles_.halo) is not None
+    m, sd = gp.predict(q, return_std=True)
+    assert gp.predict_route_ == "exact mean, tiled 1-sigma (halo 180 m)"
+    np.testing.assert_allclose(m, m_ex, atol=1e-9)  # the exact mean itself
+    ratio = sd / s_ex
+    # measured 0.9990-1.0275: wide by up to 2.7 % mid-gap (the line 190 m away, beyond the
+    # halo, is left out), narrow by 0.1 % at most (the mean's GLS term, per tile)
+    assert ratio.min() > 0.995 and ratio.max() < 1.05 and np.median(np.abs(ratio - 1)) < 1e-3
+    _, sd_n = gp.predict(q, return_std=True, include_nugget=True)
+    np.testing.assert_allclose(sd_n**2 - sd**2, gp.nugget_, rtol=1e-6)
+
+
+def test_a_tile_that_would_drop_samples_declines_the_route(monkeypatch):
+    s = _lines()
+    q = Grid(0.0, 300.0, (6.0, 6.0), (50, 50), "EPSG:32608").xy()
+    monkeypatch.setattr(gp_module, "EXACT_PREDICT_FLOPS", 1e6)
+    gp = _fit(s, tiles=TileSpec(tile=20.0, blend=2.5, halo=15.0, max_points=50))
+    m, sd = gp.predict(q, return_std=True)
+    assert gp.predict_route_ == "exact"  # 50 samples cannot hold a 180 m halo of the lines
+    m_ex, s_ex = _fit(s, method="exact").predict(q, return_std=True)
+    np.testing.assert_allclose(sd, s_ex, rtol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["exact", "tiled"])
+def test_the_route_is_only_for_auto(method, monkeypatch):
+    monkeypatch.setattr(gp_module, "EXACT_PREDICT_FLOPS", 1e6)
+    gp = _fit(_lines(), method=method)
+    gp.predict(np.array([[100.0, 100.0], [150.0, 10.0]]), return_std=True)
+    assert gp.predict_route_ == method
