@@ -267,6 +267,7 @@ def test_several_days_of_logs_are_one_survey(tmp_path):
     np.testing.assert_allclose(t.samples.xy, xy, atol=2e-3)
     assert np.all(t.track_z_std[30:] == 0.0) and np.all(t.track_z_std[:30] > 0)  # RTK fixed
     assert "2 files, 60 samples, in EPSG:32608" in t.note
+    assert "projected to EPSG:32608 (the CRS of day1.gpx)" in t.note  # not "given"
     csv = tmp_path / "spots.csv"
     pd.DataFrame({"x": xy[:5, 0] + 0.5, "y": xy[:5, 1], "z": h[:5], "crs": "EPSG:32609"}).to_csv(
         csv, index=False

@@ -146,6 +146,7 @@ def _prior_path(mean_repr: str, folder: Path | None, given: Path | None) -> Path
     tries = [rec]
     if folder is not None:
         tries += [folder / rec, folder / "field" / rec.name, folder / rec.name]
+    tries = list(dict.fromkeys(tries))  # each place once in the message
     for p in tries:
         if p.is_file():
             return p

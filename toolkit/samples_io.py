@@ -344,6 +344,8 @@ def read_sample_files(
         return first
     into = first.samples.crs.to_string()
     tables = [first] + [read_samples(p, into, antenna_height_m, gnss_heights) for p in paths[1:]]
+    for t in tables[1:]:  # a later file was read into the first one's CRS, not one given
+        t.note = (t.note or "").replace("(the CRS given)", f"(the CRS of {paths[0].name})")
     for p, t in zip(paths[1:], tables[1:], strict=True):
         if not t.samples.crs.equals(first.samples.crs, ignore_axis_order=True):
             raise bad_input(
