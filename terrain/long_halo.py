@@ -31,10 +31,19 @@ import numpy as np
 from .exact_predict import predict_exact
 from .tiled import long_scale_part, predict_tiled
 
-__all__ = ["LONG_HALO_SCALES", "predict_long_halo"]
+__all__ = ["LONG_HALO_SCALES", "long_halo_tiles", "predict_long_halo"]
 
 #: The halo, in length scales of the kernel's long part.
 LONG_HALO_SCALES = 3.0
+
+
+def long_halo_tiles(gp: Any) -> Any:
+    """The fitted ``gp``'s tiles with the halo of its kernel's long part (three of that
+    part's length scales), or None when the default tiles already hold every part."""
+    long_part = long_scale_part(gp.kernel_, gp.tiles_.halo)
+    if long_part is None:
+        return None
+    return replace(gp.tiles_, halo=LONG_HALO_SCALES * float(np.min(long_part.lengths)))
 
 
 def predict_long_halo(
@@ -49,10 +58,9 @@ def predict_long_halo(
         :func:`terrain.tiled.predict_tiled`'s counts. None when the kernel has no long part,
         or a tile had to drop samples (the caller predicts exactly).
     """
-    long_part = long_scale_part(gp.kernel_, gp.tiles_.halo)
-    if long_part is None:
+    spec = long_halo_tiles(gp)
+    if spec is None:
         return None
-    spec = replace(gp.tiles_, halo=LONG_HALO_SCALES * float(np.min(long_part.lengths)))
     Xq = gp._kernel_xy(xy)
     cov = getattr(gp, "coef_cov_", None)
     _, std, stats = predict_tiled(

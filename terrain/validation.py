@@ -61,6 +61,7 @@ from .heldout_weights import (
     neighbour_distances,
     neighbourhood_weights,
 )
+from .long_halo import long_halo_tiles
 from .metrics import calibration_curve, interval_coverage, nlpd, rmse, standardized_error_stats
 from .samples import ElevationSamples
 from .tiled import tiles_reaching_gaps
@@ -378,6 +379,12 @@ def cross_validate(
         hyper = {k: overrides[k] for k in ("kernel", "nugget") if k in overrides} or None
         if hyper and "kernel" in hyper:
             hyper["kernel"] = repr(hyper["kernel"])
+    # an exact fit only because of a long kernel part (more samples than exact_max_samples):
+    # folds on tiles with that part's halo, as the map's 1-sigma (terrain/long_halo.py)
+    long_tiles = None
+    if overrides and getattr(reference, "method_", None) == "exact":
+        if samples.n > getattr(reference, "exact_max_samples", math.inf):
+            long_tiles = long_halo_tiles(reference)
     mu = np.empty(samples.n)
     prior = np.zeros(samples.n)  # each fold's prior mean at its held-out samples, m
     sd = np.empty(samples.n)
@@ -395,8 +402,14 @@ def cross_validate(
             fold_xy = geometry.apply(samples.xy[~test])
             fold_tiles = tiles_reaching_gaps(reference.kernel_, fold_xy, geometry.kernel_matrix)
             fold_overrides = {**overrides, "tiles": fold_tiles}
+        elif overrides and long_tiles is not None:  # terrain/long_halo.py: no n^3 per fold
+            fold_overrides = {**overrides, "method": "tiled", "tiles": long_tiles}
+            fold_overrides["local_amplitude"] = False
         model = clone(estimator, **fold_overrides).fit(samples.subset(~test))
         m, s = model.predict(samples.xy[test], return_std=True)
+        if (getattr(model, "tile_stats_", None) or {}).get("tiles_capped") and long_tiles:
+            model = clone(estimator, **overrides).fit(samples.subset(~test))  # exact, then
+            m, s = model.predict(samples.xy[test], return_std=True)
         mu[test] = m
         if callable(getattr(model, "mean_", None)):
             prior[test] = model.mean_(samples.xy[test])
