@@ -283,8 +283,8 @@ class TerrainGP(HyperparameterMixin):
             if self.optimize:
                 kernel, nugget = self._optimize(kernel, nugget, self.fit_index_, rng)
         self.degenerate_ = warn_if_degenerate(kernel, None if spacing is None else X, spacing)
-        # The nugget beyond the stated noise is ground below the fit subset's spacing: kept
-        # in the 1-sigma as a short part (terrain/microscale.py), the white nugget floored.
+        self.tiling_note_ = None  # set where the tiles cannot hold a long part (below)
+        # Nugget beyond the stated noise: a short part of the 1-sigma (terrain/microscale.py)
         fitted = self.optimize and self.fit_nugget
         part = microscale_part(kernel, nugget, self.z_var_, X[self.fit_index_], fitted)
         if part is not None:  # averaged over lengths by the left-out samples' evidence
@@ -318,7 +318,7 @@ class TerrainGP(HyperparameterMixin):
         )
         if not exact:
             if not held:
-                warn_long_scale(long_part, tiles.halo)
+                self.tiling_note_ = warn_long_scale(long_part, tiles.halo)
             # Tiled: no global factor. GLS coefficients of a linear mean on every k-th sample:
             # the samples' alone, so a rebuild at these hyperparameters gives the same mean.
             if n_coef(self.mean_):

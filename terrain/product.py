@@ -116,6 +116,8 @@ def gp_provenance(gp: Any) -> dict[str, Any]:
         # (terrain.dem_reading.dem_lacks; "" without a DEM prior that smooths the steps)
         "breakline_dem_lacks": _dem_lacks_text(gp.mean_),
         "degenerate_fit": int(gp.degenerate_),
+        # the tiles could not hold a long kernel part across the survey's gaps ("" if held)
+        "tiling_warning": getattr(gp, "tiling_note_", None) or "",
         "seed": int(gp.seed),
         "software": f"glacimap {software_version()}",
     }

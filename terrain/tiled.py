@@ -464,14 +464,15 @@ def predict_tiled(
     return mean, std, stats
 
 
-def warn_long_scale(long_part: Any, halo: float) -> None:
-    """Warn that tiles cannot hold ``long_part`` (see :func:`long_scale_part`)."""
-    warnings.warn(
+def warn_long_scale(long_part: Any, halo: float) -> str:
+    """Warn that tiles cannot hold ``long_part`` (see :func:`long_scale_part`); the words
+    are returned too, for the product's provenance (``tiling_warning``)."""
+    text = (
         f"the tiled GP sees data only within {halo:.0f} m of a tile, but the kernel part "
         f"{long_part!r} carries a large variance at a longer scale and the survey leaves "
         "gaps wider than that: far from data the map will revert to the prior mean. Use a "
-        "prior mean that holds the long scale (a satellite DEM), method='exact', or "
-        "TileSpec(halo=...).",
-        TilingWarning,
-        stacklevel=3,
+        "prior mean that holds the long scale (a satellite DEM: glacimap reconstruct "
+        "--prior), or in Python method='exact' or TileSpec(halo=...)."
     )
+    warnings.warn(text, TilingWarning, stacklevel=3)
+    return text

@@ -158,7 +158,9 @@ def test_long_scale_kernel_prefers_exact_or_warns(setup):
     gp = TerrainGP(exact_max_samples=1000, **kw).fit(gappy)
     assert (gp.method_, gp.local_amplitude_) == ("exact", False)
     with pytest.warns(TilingWarning, match="gaps wider"):
-        TerrainGP(exact_max_samples=300, **kw).fit(gappy)
+        warned = TerrainGP(exact_max_samples=300, **kw).fit(gappy)
+    assert "gaps wider" in warned.provenance()["tiling_warning"]  # the product says it too
+    assert gp.provenance()["tiling_warning"] == ""
     # Dense data (largest gap well inside the halo) hold the long part: tiled with per-tile
     # amplitudes, no warning (hand check: 1,500 uniform points on 160 x 120 m).
     assert largest_gap(samples.xy) < 10.0

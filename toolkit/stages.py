@@ -341,6 +341,8 @@ def certify_stage(
         cert.update(breakline_block(product.attrs))  # the cliffs the map was fitted with
     if note:  # stated with the certificate's warnings (printed by run / process)
         cert.setdefault("warnings", []).append(note)
+    if product.attrs.get("tiling_warning"):  # the tiles could not hold a long part
+        cert.setdefault("warnings", []).append(product.attrs["tiling_warning"])
     cert["reconstruction"] = {
         "kernel": product.attrs.get("kernel"),
         "kernel_selection": json.loads(product.attrs.get("kernel_selection", "[]")),

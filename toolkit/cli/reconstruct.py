@@ -238,7 +238,7 @@ def _reconstruct_csv(
 ):  # fmt: skip
     import warnings
 
-    from terrain.errors import DegenerateFitWarning
+    from terrain.errors import DegenerateFitWarning, TilingWarning
 
     from ..config import load_scenario
     from ..export._files import previous_products, remove_stale, staged_folder
@@ -294,6 +294,7 @@ def _reconstruct_csv(
         searched = "; ".join(notes) if _file(lines[0]) is None else None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DegenerateFitWarning)
+        warnings.simplefilter("always", TilingWarning)
         with console.status(f"fitting a GP to {data.n} samples..."):
             rec = reconstruct_stage(
                 data,
@@ -316,6 +317,8 @@ def _reconstruct_csv(
     for w in caught:
         if issubclass(w.category, DegenerateFitWarning):
             console.print(f"[yellow]warning (degenerate fit):[/] {escape(str(w.message))}")
+        elif issubclass(w.category, TilingWarning):  # was recorded, never shown
+            console.print(f"[yellow]warning (tiles):[/] {escape(str(w.message))}")
     reverted = _reverted_fraction(rec)
     if reverted > 0.5 and prior is not None:  # by design: the DEM fills the gaps
         console.print(
