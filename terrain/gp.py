@@ -32,7 +32,7 @@ from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
 from .kernels import Kernel
 from .linalg import cholesky_jitter, single_blas_thread
-from .long_halo import predict_long_halo
+from .long_halo import predict_long_halo, spread_tiles
 from .microscale import microscale_part, windowed_part
 from .prior import as_mean_function
 from .product import gp_provenance, terrain_dataset
@@ -293,17 +293,14 @@ class TerrainGP(HyperparameterMixin):
             kernel = kernel if part is None else kernel + part
         self.microscale_ = part
         self.kernel_, self.nugget_ = kernel, nugget
-        tiles = self.tiles or default_tiles(kernel, X, widest, self.anisotropy_.kernel_matrix)
-        self.tiles_ = tiles
+        self.tiles_ = tiles = self.tiles or default_tiles(
+            kernel, X, widest, self.anisotropy_.kernel_matrix
+        )
         long_part = long_scale_part(kernel, tiles.halo)
         # A long-scale part is held by the tiles where data lie within a halo of everywhere.
         held = long_part is None or widest <= tiles.halo
-        amplitude_auto = (
-            self.local_amplitude == "auto"
-            and self.method == "auto"
-            and samples.n >= AMPLITUDE_MIN_SAMPLES
-            and held
-        )
+        amplitude_auto = self.local_amplitude == "auto" and self.method == "auto" and held
+        amplitude_auto = amplitude_auto and samples.n >= AMPLITUDE_MIN_SAMPLES
         exact = self.method == "exact" or (
             self.method == "auto"
             and not (self._amplitude_always or amplitude_auto)
@@ -317,7 +314,10 @@ class TerrainGP(HyperparameterMixin):
             self.local_amplitude == "auto" and not exact
         )
         if not exact:
-            if not held:
+            spread = not held and self.tiles is None and spread_tiles(long_part, tiles, widest)
+            if spread:  # far samples spread over the long part's halo (terrain/long_halo.py)
+                self.tiles_ = spread
+            elif not held:
                 self.tiling_note_ = warn_long_scale(long_part, tiles.halo)
             # Tiled: no global factor. GLS coefficients of a linear mean on every k-th sample:
             # the samples' alone, so a rebuild at these hyperparameters gives the same mean.

@@ -89,12 +89,16 @@ class TileSpec:
         solves cost max_points^2 per cell; against 600, 50k samples -> 600 x 600 at 1 m
         predicted in 8.8-8.9 s instead of 10.5-11.9 (map_speed_s28*.json), standings the same but
         one held-out row at 50k (docs/terrain.md "Performance notes").
+    far_share : float
+        Share of ``max_points`` a capped tile spreads over its halo instead of taking the
+        nearest (0: the nearest only; :func:`terrain.long_halo.spread_tiles`).
     """
 
     tile: float = 32.0
     blend: float = 4.0
     halo: float = 45.0
     max_points: int = 500
+    far_share: float = 0.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.tile) and self.tile > 0):
@@ -110,6 +114,8 @@ class TileSpec:
             raise bad_input("halo", self.halo, "a data margin >= 0 in m", "about 3 length scales")
         if int(self.max_points) < 3:
             raise bad_input("max_points", self.max_points, ">= 3 samples per tile", "")
+        if not (0.0 <= self.far_share < 1.0):
+            raise bad_input("far_share", self.far_share, "0 <= far_share < 1", "e.g. 0.5")
 
     def describe(self, amplitude_prior_sd: float | None = None) -> str:
         """One line for a product's provenance."""
@@ -118,9 +124,10 @@ class TileSpec:
             if amplitude_prior_sd is None
             else f", local amplitude (prior sd {amplitude_prior_sd:g})"
         )
+        far = f", {100 * self.far_share:g} % of them spread over the halo" if self.far_share else ""
         return (
             f"tiled local GP (tile {self.tile:g} m, blend {self.blend:g} m, halo {self.halo:g}"
-            f" m, at most {self.max_points} samples per tile{amp})"
+            f" m, at most {self.max_points} samples per tile{far}{amp})"
         )
 
     @classmethod
@@ -391,7 +398,7 @@ def predict_tiled(
             d_idx, dist = d_idx[near], dist[near]
             if d_idx.size > spec.max_points:
                 capped = True
-                d_idx = d_idx[np.argpartition(dist, spec.max_points)[: spec.max_points]]
+                d_idx = d_idx[_nearest_and_spread(X[d_idx], dist, spec)]
         if len(d_idx) == 0:
             var0 = np.full(q_idx.size, prior_var)
             if basis is not None:
@@ -462,6 +469,33 @@ def predict_tiled(
         stats["amplitudes"] = np.percentile(amps, [5, 50, 95]).tolist()
     std = np.sqrt(np.maximum(second - mean * mean, 0.0)) if return_std else None
     return mean, std, stats
+
+
+def _nearest_and_spread(xy: np.ndarray, dist: np.ndarray, spec: TileSpec) -> np.ndarray:
+    """Indices of the ``spec.max_points`` samples a capped tile keeps: the nearest, or with
+    ``spec.far_share`` > 0 the nearest ``(1 - far_share)`` of them plus the rest spread over
+    the halo (one per cell of the coarsest square lattice that still fills them, the one
+    nearest the tile in each cell): data across a wide gap that the nearest alone, dense
+    along the next line, would leave out."""
+    k = int(spec.max_points)
+    if spec.far_share <= 0:
+        return np.argpartition(dist, k)[:k]
+    n_near = k - int(round(spec.far_share * k))
+    order = np.argsort(dist, kind="stable")
+    near, rest = order[:n_near], order[n_near:]
+    want = k - n_near
+    span = np.ptp(xy[rest], axis=0).max() + 1.0
+    cell = span / np.sqrt(want)  # about want cells if the rest filled the square
+    first = np.arange(rest.size)
+    for _ in range(40):
+        ij = np.floor((xy[rest] - xy[rest].min(axis=0)) / cell).astype(np.int64)
+        key = ij[:, 0] * (int(span / cell) + 2) + ij[:, 1]
+        _, idx = np.unique(key, return_index=True)  # rest is nearest-first: each cell's nearest
+        if idx.size >= want:
+            first = idx
+            break
+        cell /= 1.5
+    return np.concatenate([near, rest[np.sort(first)[:want]]])
 
 
 def warn_long_scale(long_part: Any, halo: float) -> str:

@@ -401,6 +401,8 @@ def cross_validate(
             geometry = reference.anisotropy_  # the fold's samples in the kernel's space
             fold_xy = geometry.apply(samples.xy[~test])
             fold_tiles = tiles_reaching_gaps(reference.kernel_, fold_xy, geometry.kernel_matrix)
+            if reference.tiles_.far_share:  # the map's spread halo (terrain/long_halo.py)
+                fold_tiles = reference.tiles_
             fold_overrides = {**overrides, "tiles": fold_tiles}
         elif overrides and long_tiles is not None:  # terrain/long_halo.py: no n^3 per fold
             fold_overrides = {**overrides, "method": "tiled", "tiles": long_tiles}
