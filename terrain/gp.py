@@ -32,7 +32,7 @@ from .grid import Grid, check_same_crs
 from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
 from .kernels import Kernel
 from .linalg import cholesky_jitter, single_blas_thread
-from .long_halo import predict_long_halo, spread_tiles
+from .long_halo import predict_long_halo
 from .microscale import microscale_part, windowed_part
 from .prior import as_mean_function
 from .product import gp_provenance, terrain_dataset
@@ -314,10 +314,7 @@ class TerrainGP(HyperparameterMixin):
             self.local_amplitude == "auto" and not exact
         )
         if not exact:
-            spread = not held and self.tiles is None and spread_tiles(long_part, tiles, widest)
-            if spread:  # far samples spread over the long part's halo (terrain/long_halo.py)
-                self.tiles_ = spread
-            elif not held:
+            if not held:
                 self.tiling_note_ = warn_long_scale(long_part, tiles.halo)
             # Tiled: no global factor. GLS coefficients of a linear mean on every k-th sample:
             # the samples' alone, so a rebuild at these hyperparameters gives the same mean.

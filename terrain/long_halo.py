@@ -31,27 +31,10 @@ import numpy as np
 from .exact_predict import predict_exact
 from .tiled import long_scale_part, predict_tiled
 
-__all__ = ["FAR_SHARE", "LONG_HALO_SCALES", "long_halo_tiles", "predict_long_halo", "spread_tiles"]
+__all__ = ["LONG_HALO_SCALES", "long_halo_tiles", "predict_long_halo"]
 
 #: The halo, in length scales of the kernel's long part.
 LONG_HALO_SCALES = 3.0
-#: Share of a capped tile's sample budget spread over its long halo (the rest: the nearest).
-FAR_SHARE = 0.5
-
-
-def spread_tiles(long_part: Any, tiles: Any, widest: float) -> Any:
-    """Tiles for a *tiled* fit whose kernel part ``long_part`` the default ``tiles`` cannot
-    hold across the survey's ``widest`` gap (m): the halo three of that part's length
-    scales, and a capped tile's budget half its nearest samples, half spread over the halo
-    (:data:`FAR_SHARE`, ``TileSpec.far_share``), so that a tile in a gap between dense lines
-    sees the lines beyond the nearest. None when even that halo does not reach across the
-    gap (the caller warns). Measured on 23,680 GNSS fixes on lines 300 m apart over olinda's
-    real DEM, no prior: 4.247 m (1.13 x Delaunay; the tiles left the 226 m part out) ->
-    3.731 m (1.00 x, as the exact GP on a quarter of the fixes), 13.6 s for 22,500 cells."""
-    halo = LONG_HALO_SCALES * float(np.min(long_part.lengths))
-    if widest > halo:
-        return None
-    return replace(tiles, halo=halo, far_share=FAR_SHARE)
 
 
 def long_halo_tiles(gp: Any) -> Any:

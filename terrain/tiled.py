@@ -91,7 +91,9 @@ class TileSpec:
         one held-out row at 50k (docs/terrain.md "Performance notes").
     far_share : float
         Share of ``max_points`` a capped tile spreads over its halo instead of taking the
-        nearest (0: the nearest only; :func:`terrain.long_halo.spread_tiles`).
+        nearest (0, the default: the nearest only). With a halo of three long length
+        scales it brings a tiled fit close to the exact GP across gaps between dense lines;
+        measured, not the default (docs/terrain.md "A capped tile's budget spread").
     """
 
     tile: float = 32.0

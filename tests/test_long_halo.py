@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import terrain.gp as gp_module
-from terrain import ElevationSamples, Grid, SquaredExponential, TerrainGP
+from terrain import ElevationSamples, Grid, InputError, SquaredExponential, TerrainGP
 from terrain.tiled import TileSpec, long_scale_part
 
 #: A long part whose 3-scale halo (180 m) is beyond the default tiles' MAX_HALO (150 m).
@@ -111,25 +111,32 @@ def _dense_lines(seed=1):
     return ElevationSamples(xy, z + rng.normal(0, 0.05, len(z)), 0.05**2, crs="EPSG:32608")
 
 
-def test_a_tiled_fit_spreads_its_tiles_over_the_long_halo():
+def test_a_capped_tiles_budget_spread_over_a_long_halo():
     # A tiled fit (beyond 3 x exact_max_samples) whose default tiles (15 m halo) cannot hold
-    # the 60 m part across 100 m gaps: its tiles get a 180 m halo with half their 500-sample
-    # budget spread over it, instead of the nearest 500 (which lie along the next line).
-    # Reference: the exact GP on the same samples, in the gaps (x 50-100 and 150-200 m).
-    from terrain.long_halo import FAR_SHARE
+    # the 60 m part across 100 m gaps: warned (and said in the product). Given tiles with a
+    # 180 m halo, a capped tile that keeps half its 500 samples nearest and spreads half over
+    # the halo (TileSpec.far_share) sees the lines beyond the next one; the 500 nearest lie
+    # along the next line. Reference: the exact GP on the same samples, in the gaps.
+    from terrain import TilingWarning
 
     s = _dense_lines()
-    gp = _fit(s, exact_max_samples=500, local_amplitude=False)
-    assert gp.method_ == "tiled" and gp.tiles_.halo == pytest.approx(180.0)
-    assert gp.tiles_.far_share == FAR_SHARE and gp.tiling_note_ is None
-    assert "50 % of them spread over the halo" in gp.provenance()["method"]
+    with pytest.warns(TilingWarning, match="gaps wider"):
+        default = _fit(s, exact_max_samples=500, local_amplitude=False)
+    assert default.method_ == "tiled" and "gaps wider" in default.provenance()["tiling_warning"]
+    long_halo = TileSpec(tile=16.0, blend=2.0, halo=180.0)
+    spread = _fit(s, method="tiled", local_amplitude=False,
+                  tiles=replace(long_halo, far_share=0.5))  # fmt: skip
+    assert "50 % of them spread over the halo" in spread.provenance()["method"]
+    assert spread.provenance()["tiling_warning"] == ""  # the given halo holds the 60 m part
+    nearest = _fit(s, method="tiled", local_amplitude=False, tiles=long_halo)
     gx, gy = np.meshgrid(np.r_[np.arange(50.0, 101.0, 5.0), np.arange(150.0, 201.0, 5.0)],
                          np.arange(10.0, 291.0, 10.0))  # fmt: skip
     q = np.column_stack([gx.ravel(), gy.ravel()])
     m_ex, s_ex = _fit(s, method="exact").predict(q, return_std=True)
-    m_sp, s_sp = gp.predict(q, return_std=True)
-    nearest = _fit(s, method="tiled", local_amplitude=False, tiles=replace(gp.tiles_, far_share=0))
-    m_nn, s_nn = nearest.predict(q, return_std=True)
+    m_sp, s_sp = spread.predict(q, return_std=True)
+    m_nn, _ = nearest.predict(q, return_std=True)
     err_sp, err_nn = np.sqrt(np.mean((m_sp - m_ex) ** 2)), np.sqrt(np.mean((m_nn - m_ex) ** 2))
     assert err_sp < 0.5 * err_nn  # measured 0.159 m against 0.564 m (rms off the exact mean)
     assert np.median(np.abs(s_sp / s_ex - 1)) < 0.02  # measured 0.4 % (nearest: 5.1 %)
+    with pytest.raises(InputError, match="far_share"):
+        TileSpec(far_share=1.0)
