@@ -64,7 +64,7 @@ def predict_long_halo(
         :func:`terrain.tiled.predict_tiled`'s counts. None when the kernel has no long part,
         or the tiles would cost more than the exact variance (the caller predicts exactly).
     """
-    spec = long_halo_tiles(gp)
+    spec = long_halo_tiles(gp) if gp.method_ == "exact" else None  # a tiled fit has no L
     if spec is None:
         return None
     spec = replace(spec, far_share=FAR_SHARE)  # spread only where a tile is capped

@@ -38,6 +38,7 @@ from .linalg import cholesky_jitter
 from .microscale import without_microscale
 from .nogil_lapack import cho_solve_lower, solve_lower, symmetric_eigen
 from .radial_table import tabulate
+from .tile_selection import capped_selection
 
 __all__ = [
     "TileSpec",
@@ -400,7 +401,7 @@ def predict_tiled(
             d_idx, dist = d_idx[near], dist[near]
             if d_idx.size > spec.max_points:
                 capped = True
-                d_idx = d_idx[_nearest_and_spread(X[d_idx], dist, spec)]
+                d_idx = d_idx[capped_selection(X[d_idx], dist, spec.max_points, spec.far_share)]
         if len(d_idx) == 0:
             var0 = np.full(q_idx.size, prior_var)
             if basis is not None:
@@ -471,33 +472,6 @@ def predict_tiled(
         stats["amplitudes"] = np.percentile(amps, [5, 50, 95]).tolist()
     std = np.sqrt(np.maximum(second - mean * mean, 0.0)) if return_std else None
     return mean, std, stats
-
-
-def _nearest_and_spread(xy: np.ndarray, dist: np.ndarray, spec: TileSpec) -> np.ndarray:
-    """Indices of the ``spec.max_points`` samples a capped tile keeps: the nearest, or with
-    ``spec.far_share`` > 0 the nearest ``(1 - far_share)`` of them plus the rest spread over
-    the halo (one per cell of the coarsest square lattice that still fills them, the one
-    nearest the tile in each cell): data across a wide gap that the nearest alone, dense
-    along the next line, would leave out."""
-    k = int(spec.max_points)
-    if spec.far_share <= 0:
-        return np.argpartition(dist, k)[:k]
-    n_near = k - int(round(spec.far_share * k))
-    order = np.argsort(dist, kind="stable")
-    near, rest = order[:n_near], order[n_near:]
-    want = k - n_near
-    span = np.ptp(xy[rest], axis=0).max() + 1.0
-    cell = span / np.sqrt(want)  # about want cells if the rest filled the square
-    first = np.arange(rest.size)
-    for _ in range(40):
-        ij = np.floor((xy[rest] - xy[rest].min(axis=0)) / cell).astype(np.int64)
-        key = ij[:, 0] * (int(span / cell) + 2) + ij[:, 1]
-        _, idx = np.unique(key, return_index=True)  # rest is nearest-first: each cell's nearest
-        if idx.size >= want:
-            first = idx
-            break
-        cell /= 1.5
-    return np.concatenate([near, rest[np.sort(first)[:want]]])
 
 
 def warn_long_scale(long_part: Any, halo: float) -> str:

@@ -131,7 +131,7 @@ def _dense_lines(seed=1):
     return ElevationSamples(xy, z + rng.normal(0, 0.05, len(z)), 0.05**2, crs="EPSG:32608")
 
 
-def test_a_capped_tiles_budget_spread_over_a_long_halo():
+def test_a_capped_tiles_budget_spread_over_a_long_halo(monkeypatch):
     # A tiled fit (beyond 3 x exact_max_samples) whose default tiles (15 m halo) cannot hold
     # the 60 m part across 100 m gaps: warned (and said in the product). Given tiles with a
     # 180 m halo, a capped tile that keeps half its 500 samples nearest and spreads half over
@@ -143,6 +143,9 @@ def test_a_capped_tiles_budget_spread_over_a_long_halo():
     with pytest.warns(TilingWarning, match="gaps wider"):
         default = _fit(s, exact_max_samples=500, local_amplitude=False)
     assert default.method_ == "tiled" and "gaps wider" in default.provenance()["tiling_warning"]
+    monkeypatch.setattr(gp_module, "EXACT_PREDICT_FLOPS", 1e3)  # big: a tiled fit stays tiled
+    default.predict(np.array([[60.0, 100.0], [70.0, 120.0]]), return_std=True)
+    assert default.predict_route_ == "tiled"
     long_halo = TileSpec(tile=16.0, blend=2.0, halo=180.0)
     spread = _fit(s, method="tiled", local_amplitude=False,
                   tiles=replace(long_halo, far_share=0.5))  # fmt: skip
