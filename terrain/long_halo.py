@@ -67,12 +67,17 @@ def predict_long_halo(
     spec = long_halo_tiles(gp) if gp.method_ == "exact" else None  # a tiled fit has no L
     if spec is None:
         return None
-    spec = replace(spec, far_share=FAR_SHARE)  # spread only where a tile is capped
     Xq = gp._kernel_xy(xy)
+    n = gp.X_train_.shape[0]
+    area = float(np.prod(np.ptp(gp.X_train_, axis=0)) + 1.0)
+    # tiles of 4 x 4 queries or more (one factor for 16 cells of a lattice), their own
+    # region holding at most a quarter of the budget at the samples' mean density
+    spacing = float(np.sqrt((np.prod(np.ptp(Xq, axis=0)) + 1.0) / Xq.shape[0]))
+    roomy = np.sqrt(0.25 * spec.max_points * area / n) / 1.25
+    tile = max(spec.tile, min(4.0 * spacing, roomy))
+    spec = replace(spec, tile=tile, blend=tile / 8.0, far_share=FAR_SHARE)
     # cost: each tile factors the samples in its reach (at the samples' mean density, at
     # most its budget) and solves them per cell, against n^2 per cell exactly
-    n = gp.X_train_.shape[0]
-    area = float(np.prod(np.ptp(gp.X_train_, axis=0) + spec.tile))
     reach = (spec.tile + 2.0 * (spec.blend + spec.halo)) ** 2
     k = min(float(spec.max_points), n * min(1.0, reach / area))
     tiles = np.unique(np.floor(Xq / spec.tile).astype(np.int64), axis=0).shape[0]
