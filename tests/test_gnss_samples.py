@@ -154,6 +154,14 @@ def test_heights_are_carried_to_the_ellipsoid(tmp_path):
     s, _, note = read_gnss_samples(ell, UTM, heights="ellipsoidal")
     np.testing.assert_allclose(s.z, h, atol=2e-4)
     assert "read as ellipsoidal heights" in note and "pass --gnss-heights" not in note
+    sep = _gpx(tmp_path / "sep.gpx", xy, h)  # sea level, and its geoidheight as written
+    doc = gpxpy.parse(sep.read_text())
+    for p, nk in zip(doc.tracks[0].segments[0].points, n, strict=True):
+        p.geoid_height = round(float(nk) + 0.25, 3)  # the receiver's own geoid, 25 cm off
+    sep.write_text(doc.to_xml())
+    s, _, note = read_gnss_samples(sep, UTM)
+    np.testing.assert_allclose(s.z, h + 0.25, atol=2e-3)  # ele + geoidheight, as stated
+    assert "states no datum" not in note
     q = np.ones(len(h), int)
     pos = _pos(tmp_path / "geo.pos", xy, h - n, q, np.full(len(h), 0.02), geodetic=True)
     s, _, note = read_gnss_samples(pos, UTM)

@@ -4,7 +4,9 @@ Track segments are read in the order of their first time stamp, not of the file:
 and editors write tracks newest first, or a merged file in any order; the points inside a
 segment keep their order (a time that goes back there is a clock glitch, counted).
 
-A point needs a ``time`` (UTC) and an ``ele``; ``hdop`` / ``vdop`` with the ``fix`` type give
+A point needs a ``time`` (UTC) and an ``ele`` (with ``geoidheight``, GPX 1.1's geoid
+separation, ``ele + geoidheight`` is the ellipsoidal height; without, ``ele``'s datum is not
+stated: ``GPSFixes.height_unstated``); ``hdop`` / ``vdop`` with the ``fix`` type give
 its 1-sigma (:func:`.fixes.sigma_from_dop`; ``fix`` absent counts as an autonomous fix, no
 hdop leaves the stated sensor model in charge). Counted, not fatal: points without time or
 elevation, ``fix`` ``none`` (no solution) or ``2d`` (no height), and the time-order reasons of
@@ -90,7 +92,9 @@ def read_gpx(path: str | Path, sigma_table: dict[str, float] | None = None) -> G
                 None if p.vertical_dilution is None else float(p.vertical_dilution),
                 table,
             )
-            # GPX does not say which surface ``ele`` is above (sea level or the ellipsoid)
-            row = (_posix(p.time), p.latitude, p.longitude, float(p.elevation), *sig, kind, True)
-            rows.append(row)
+            # ``ele`` alone does not say which surface it is above (sea level or the
+            # ellipsoid); with ``geoidheight`` (GPX 1.1, as NMEA's separation) it is sea level
+            sep = p.geoid_height
+            h = float(p.elevation) + (0.0 if sep is None else float(sep))
+            rows.append((_posix(p.time), p.latitude, p.longitude, h, *sig, kind, sep is None))
     return GPSFixes.collect(rows, skipped, "gpx", path.name)
