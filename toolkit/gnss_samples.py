@@ -117,7 +117,11 @@ def _ellipsoidal(fixes: Any, fmt: str, heights: str) -> tuple[np.ndarray, str]:
         datum = UNSTATED_HEIGHTS[fmt] if heights == "auto" else heights
         k = unstated
         h[k] = ellipsoidal_height(h[k], fixes.lon_deg[k], fixes.lat_deg[k], datum, field)
-        what = "GPX ele" if fmt == "gpx" else f"{int(k.sum())} GGA without a geoid separation"
+        what = (
+            f"{int(k.sum())} GGA without a geoid separation"
+            if fmt != "gpx"
+            else ("GPX ele" if k.all() else f"{int(k.sum())} GPX points without geoidheight")
+        )
         how = (
             "as ellipsoidal heights"
             if datum == "ellipsoidal"
