@@ -222,6 +222,8 @@ def dem_height_datum(attrs: dict[str, Any]) -> str | None:
     if attrs.get("height_datum"):
         return str(attrs["height_datum"])
     text = str(attrs.get("vertical_datum") or "").lower()
+    if "not stated" in text:  # e.g. a map of a CSV whose z's datum nobody gave
+        return None
     if "ellipsoid" in text and ("no geoid" in text or "geoid" not in text):
         return "ellipsoidal"
     return next((k for k in GEOIDS if k in text.replace("-", "").replace(" ", "")), None)

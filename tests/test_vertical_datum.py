@@ -110,3 +110,38 @@ def test_export_writes_the_map_above_egm96(tmp_path):
     bare.attrs = {k: v for k, v in ds.attrs.items() if k != "vertical_datum"}
     with pytest.raises(InputError, match="--heights.*states its heights' datum"):
         vd.product_in_datum(bare, "egm96")
+
+
+def test_a_map_from_a_csv_is_in_the_csvs_datum_and_says_so(tmp_path):
+    # A CSV's z are taken as given: the map is in their datum. Without --samples-heights
+    # the product says the datum is not stated (not the GPS ellipsoid: change and certify
+    # would carry it as such); with it, the datum is named; a geoid with GNSS logs is refused.
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from terrain.vertical_datum import dem_height_datum
+    from toolkit.cli import app
+    from toolkit.samples_io import samples_height_attrs
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform([500_000, 6_600_000], [500_300, 6_600_300], (300, 2))
+    z = 1000 + 0.02 * (xy[:, 0] - 500_000) + rng.normal(0, 0.05, 300)
+    csv = tmp_path / "s.csv"
+    pd.DataFrame({"x": xy[:, 0], "y": xy[:, 1], "z": z, "crs": "EPSG:32608"}).to_csv(
+        csv, index=False
+    )
+    import xarray as xr
+
+    for extra, want in (([], None), (["--samples-heights", "egm96"], "egm96")):
+        out = tmp_path / f"m{len(extra)}"
+        r = CliRunner().invoke(app, ["reconstruct", str(csv), "--resolution", "20", "--out",
+                                     str(out), *extra])  # fmt: skip
+        assert r.exit_code == 0, r.output
+        attrs = xr.open_dataset(out / "product.nc").attrs
+        assert dem_height_datum(attrs) == want
+    assert "not stated" in xr.open_dataset(tmp_path / "m0" / "product.nc").attrs["vertical_datum"]
+    gpx = tmp_path / "t.gpx"
+    gpx.write_text('<gpx version="1.1" creator="t"></gpx>')
+    with pytest.raises(InputError, match="--samples-heights.*GNSS logs"):
+        samples_height_attrs([gpx], "egm96")
+    assert samples_height_attrs([gpx], None) == {}  # logs: the product's default, ellipsoidal

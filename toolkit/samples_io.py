@@ -379,3 +379,48 @@ def read_sample_files(
             "stated; each survey's own offset is not modelled apart)"
         )
     return SampleTable(cat, np.asarray(track, float), shared, "; ".join(notes))
+
+
+def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str, str]:
+    """The product attributes that say what a map made from ``paths`` is in height.
+
+    GNSS logs are carried to the WGS 84 ellipsoid (:mod:`toolkit.gnss_samples`): the
+    product's default ``vertical_datum`` says so, and ``given`` may only confirm it. A CSV's
+    ``z`` is taken as given, so the map is in the CSV's datum: ``given``
+    (``--samples-heights``: ``"ellipsoidal"``, ``"egm96"``, ``"egm2008"``) names it
+    (``height_datum``), else the product says it is not stated -- never the GPS ellipsoid by
+    default (``glacimap change`` / ``certify`` would carry it as such).
+
+    Raises
+    ------
+    InputError
+        An unknown datum; a geoid for GNSS logs, or for CSVs mixed with them.
+    """
+    from terrain.vertical_datum import height_datum_option
+
+    from .gnss_samples import gnss_format
+
+    field = "--samples-heights"
+    given = None if given is None else height_datum_option(given, field)
+    logs = [gnss_format(p) is not None for p in paths]
+    if any(logs) and given not in (None, "ellipsoidal"):
+        raise bad_input(
+            field,
+            given,
+            "ellipsoidal: GNSS logs are carried to the WGS 84 ellipsoid",
+            "say what a log's heights are with --gnss-heights; convert a CSV's z to "
+            "ellipsoidal heights to map it with logs",
+        )
+    if all(logs):
+        return {}
+    if given is None:
+        return {
+            "vertical_datum": "the samples' z as given (their vertical datum not stated: "
+            "glacimap reconstruct --samples-heights ellipsoidal | egm96 | egm2008)"
+        }
+    words = (
+        "ellipsoidal height above the WGS 84 ellipsoid"
+        if given == "ellipsoidal"
+        else f"orthometric height above {given.upper()}"
+    )
+    return {"height_datum": given, "vertical_datum": f"{words} (the samples' z, as stated)"}

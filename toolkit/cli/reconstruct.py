@@ -136,6 +136,14 @@ def reconstruct(
             "the WGS 84 ellipsoid, the map's datum.",
         ),
     ] = None,
+    samples_heights: Annotated[
+        str | None,
+        typer.Option(
+            "--samples-heights",
+            help="What a CSV's z are above: ellipsoidal, egm96, egm2008. The map is in the "
+            "samples' datum and says so; without, it says the datum is not stated.",
+        ),
+    ] = None,
     prior_as: Annotated[
         str | None,
         typer.Option(
@@ -209,6 +217,7 @@ def reconstruct(
             antenna_height,
             prior_as,
             gnss_heights,
+            samples_heights,
         )
 
 
@@ -235,6 +244,7 @@ def _file(lines: Any) -> Any:
 def _reconstruct_csv(
     samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None,
     horizontal_sd=None, antenna_height=None, prior_as=None, gnss_heights=None,
+    samples_heights=None,
 ):  # fmt: skip
     import warnings
 
@@ -246,7 +256,7 @@ def _reconstruct_csv(
     from ..processing import prior_as_data, prior_mean
     from ..products import write_csv, write_map_products
     from ..provenance import input_record
-    from ..samples_io import grid_like, read_sample_files, sample_columns
+    from ..samples_io import grid_like, read_sample_files, sample_columns, samples_height_attrs
     from ..stages import certify_stage, map_grid, reconstruct_stage
 
     settings = load_scenario(cfg, overrides)
@@ -256,6 +266,7 @@ def _reconstruct_csv(
         given = scenario_lines(settings)
         lines = given if given[0] is not None else None
     seed = int(overrides["seed"])
+    heights = samples_height_attrs(samples, samples_heights)  # before the read: fails fast
     table = read_sample_files(samples, crs, antenna_height, gnss_heights)
     if table.note:
         console.print(f"[yellow]note:[/] {escape(str(table.note))}")
@@ -332,6 +343,7 @@ def _reconstruct_csv(
             "the cells (their 1-sigma is within 10 % of the prior's): the samples do not "
             "constrain most of this grid; narrow --bounds or add samples"
         )
+    rec.product.attrs.update(heights)  # a CSV's datum, or that it is not stated
     if as_data is not None:
         rec.product.attrs["prior_as_data"] = as_data.note()
     if lines is not None and searched:  # what the search found and dropped, with the map
