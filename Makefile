@@ -47,6 +47,7 @@ bench: setup
 	$(BIN)/python benchmarks/breakline_steps.py --out benchmarks/results/breakline_steps.json
 	$(BIN)/python benchmarks/real_contours.py --out benchmarks/results/real_contours.json
 	$(BIN)/python benchmarks/profile_prior.py --out benchmarks/results/profile_prior.json
+	$(BIN)/python benchmarks/gnss_heights.py --out benchmarks/results/gnss_heights.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache
