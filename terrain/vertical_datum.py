@@ -34,6 +34,7 @@ from .errors import bad_input
 __all__ = [
     "GEOIDS",
     "HEIGHT_DATUMS",
+    "datum_words",
     "dem_height_datum",
     "ellipsoidal_height",
     "geoid_grid",
@@ -42,6 +43,7 @@ __all__ = [
     "lattice_geoid_height",
     "product_in_datum",
     "split_vertical",
+    "stated_or_given",
 ]
 
 #: Geoid models glacimap can apply: their grid files (PROJ CDN name first) and the vertical
@@ -268,7 +270,7 @@ def product_in_datum(ds: Any, datum: str, field: str = "--heights") -> tuple[Any
             "set the product's height_datum attribute first",
         )
     if own == datum:
-        return ds, f"heights already above {_words(datum)}"
+        return ds, f"heights already above {datum_words(datum)}"
     crs = dataarray_crs(ds)
     x, y = ds["x"].values, ds["y"].values
 
@@ -289,16 +291,27 @@ def product_in_datum(ds: Any, datum: str, field: str = "--heights") -> tuple[Any
     out.attrs = {
         **ds.attrs,
         "height_datum": datum,
-        "vertical_datum": f"{words} (from the map's heights above {_words(own)} with the "
+        "vertical_datum": f"{words} (from the map's heights above {datum_words(own)} with the "
         "geoid's undulation; the geoid model's own error is not in elevation_std)",
     }
     note = (
-        f"heights carried from {_words(own)} to {_words(datum)}: "
+        f"heights carried from {datum_words(own)} to {datum_words(datum)}: "
         f"{float(np.mean(shift)):+.2f} m on average ({float(np.min(shift)):+.2f} to "
         f"{float(np.max(shift)):+.2f} m)"
     )
     return out, note
 
 
-def _words(datum: str) -> str:
+def datum_words(datum: str) -> str:
+    """A datum of :data:`HEIGHT_DATUMS` in words: "the WGS 84 ellipsoid", "EGM96"..."""
     return "the WGS 84 ellipsoid" if datum == "ellipsoidal" else datum.upper()
+
+
+def stated_or_given(stated: str | None, given: Any, field: str, what: str) -> str | None:
+    """The height datum of ``what``: the option ``given`` (checked) where ``what`` does not
+    state its own (``stated``), else the stated one; an option that contradicts it is an
+    :class:`InputError` naming ``field``."""
+    given = None if given is None else height_datum_option(given, field)
+    if given is not None and stated is not None and given != stated:
+        raise bad_input(field, given, f"the datum the {what} state ({stated})", "drop it")
+    return given or stated

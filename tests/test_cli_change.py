@@ -189,7 +189,7 @@ def test_a_dem_in_geoid_heights_is_carried_to_the_maps_datum(tmp_path):
     assert res.exit_code == 0, res.output
     vol = json.loads((out / "volume.json").read_text())
     assert abs(vol["mean_dh_m"]) < 0.01  # h = H + N: the geoid's shift gone
-    assert any("above EGM96 carried to BEFORE's (the ellipsoid)" in t for t in vol["notes"])
+    assert any("above EGM96 carried to BEFORE's (the WGS 84 ellipsoid)" in t for t in vol["notes"])
     res, out = change("a.tif")  # no datum stated: taken as BEFORE's, and said
     assert res.exit_code == 0, res.output
     vol = json.loads((out / "volume.json").read_text())

@@ -18,25 +18,15 @@ from typing import Any
 
 import numpy as np
 
-from terrain.errors import bad_input
 from terrain.vertical_datum import (
-    GEOIDS,
+    datum_words,
     dem_height_datum,
     geoid_height,
-    height_datum_option,
     split_vertical,
+    stated_or_given,
 )
 
 __all__ = ["checkpoints_in_dem_datum"]
-
-_WORDS = {"ellipsoidal": "the WGS 84 ellipsoid"} | {k: k.upper() for k in GEOIDS}
-
-
-def _stated_and_given(stated: str | None, given: str | None, field: str, what: str) -> str | None:
-    given = None if given is None else height_datum_option(given, field)
-    if given is not None and stated is not None and given != stated:
-        raise bad_input(field, given, f"the datum the {what} state ({stated})", "drop it")
-    return given or stated
 
 
 def checkpoints_in_dem_datum(
@@ -61,17 +51,17 @@ def checkpoints_in_dem_datum(
     """
     dem_stated = split_vertical(raster.grid.crs)[1] or dem_height_datum(raster.provenance)
     cp_stated = None if cps.crs is None else split_vertical(cps.crs)[1]
-    d_dem = _stated_and_given(dem_stated, dem_heights, "--dem-heights", "DEM")
-    d_cp = _stated_and_given(cp_stated, checkpoint_heights, "--checkpoint-heights", "checkpoints")
+    d_dem = stated_or_given(dem_stated, dem_heights, "--dem-heights", "DEM")
+    d_cp = stated_or_given(cp_stated, checkpoint_heights, "--checkpoint-heights", "checkpoints")
     record: dict[str, Any] = {"dem": d_dem, "checkpoints": d_cp, "shift_m": 0.0}
     if d_dem is None or d_cp is None or d_dem == d_cp:
         known = d_dem or d_cp
         unknown = "the DEM states" if d_dem is None else "the checkpoints state"
         record["note"] = (
-            f"both in heights above {_WORDS[known]}"
+            f"both in heights above {datum_words(known)}"
             if d_dem == d_cp and known is not None
             else f"heights compared as stored ({unknown} no vertical datum"
-            + (f"; taken as above {_WORDS[known]}" if known else "")
+            + (f"; taken as above {datum_words(known)}" if known else "")
             + "): pass --dem-heights / --checkpoint-heights (ellipsoidal, egm96, egm2008) if "
             "the two differ"
         )
@@ -94,7 +84,7 @@ def checkpoints_in_dem_datum(
     shift = undulation(d_cp) - undulation(d_dem)  # h = H + N: into the DEM's datum
     record["shift_m"] = float(np.mean(shift[ok])) if ok.any() else 0.0
     record["note"] = (
-        f"checkpoint heights above {_WORDS[d_cp]} carried to the DEM's ({_WORDS[d_dem]}): "
-        f"{record['shift_m']:+.2f} m on average"
+        f"checkpoint heights above {datum_words(d_cp)} carried to the DEM's "
+        f"({datum_words(d_dem)}): {record['shift_m']:+.2f} m on average"
     )
     return replace(cps, z=cps.z + shift), record

@@ -253,27 +253,17 @@ def same_heights(b: Any, a: Any, given_b: str | None, given_a: str | None) -> tu
     differ, AFTER's elevation gets ``N_after - N_before`` (the geoids' undulations at its
     cells; 0 for the ellipsoid): a DEM in EGM96 heights against a glacimap map differs by
     N, tens of metres, which a change without co-registration would read as thinning."""
-    import xarray as xr
-
-    from terrain.grid import dataarray_crs
     from terrain.vertical_datum import (
-        GEOIDS,
+        datum_words,
         dem_height_datum,
-        height_datum_option,
-        lattice_geoid_height,
+        product_in_datum,
+        stated_or_given,
     )
 
-    datums = []
-    for ds, given, name in ((b, given_b, "before"), (a, given_a, "after")):
-        stated = dem_height_datum(ds.attrs)
-        field = f"--heights-{name}"
-        given = None if given is None else height_datum_option(given, field)
-        if given is not None and stated is not None and given != stated:
-            raise bad_input(
-                field, given, f"the datum {name.upper()} states itself ({stated})", "drop it"
-            )
-        datums.append(given or stated)
-    db, da = datums
+    db, da = (
+        stated_or_given(dem_height_datum(ds.attrs), given, f"--heights-{name}", name.upper())
+        for ds, given, name in ((b, given_b, "before"), (a, given_a, "after"))
+    )
     if db is None and da is None:
         return a, ""  # both as stored: one datum, as every change before
     if db is None or da is None:
@@ -285,23 +275,13 @@ def same_heights(b: Any, a: Any, given_b: str | None, given_a: str | None) -> tu
         )
     if db == da:
         return a, f"both DEMs in {db} heights"
-    crs = dataarray_crs(a)
-    x, y = a["x"].values, a["y"].values  # AFTER's own cell centres, in its own order
-
-    def undulation(datum: str) -> np.ndarray:
-        if datum == "ellipsoidal":
-            return np.zeros((y.size, x.size))
-        return lattice_geoid_height(x, y, crs, datum, "--heights-after")
-
-    shift = undulation(da) - undulation(db)  # h = H + N: into BEFORE's datum
-    out = a.copy()
-    out["elevation"] = a["elevation"] + xr.DataArray(shift, dims=("y", "x"))
-    out.attrs = {**a.attrs, "height_datum": db}
-    words = {k: k.upper() for k in GEOIDS} | {"ellipsoidal": "the ellipsoid"}
+    # h = H + N at AFTER's own cells: into BEFORE's datum (terrain.vertical_datum)
+    out, _ = product_in_datum(a.assign_attrs(height_datum=da), db, "--heights-after")
+    shift = (out["elevation"] - a["elevation"]).values
     return out, (
-        f"AFTER's heights above {words[da]} carried to BEFORE's ({words[db]}): "
-        f"{float(np.mean(shift)):+.2f} m on average ({float(np.min(shift)):+.2f} to "
-        f"{float(np.max(shift)):+.2f} m)"
+        f"AFTER's heights above {datum_words(da)} carried to BEFORE's ({datum_words(db)}): "
+        f"{float(np.nanmean(shift)):+.2f} m on average ({float(np.nanmin(shift)):+.2f} to "
+        f"{float(np.nanmax(shift)):+.2f} m)"
     )
 
 
