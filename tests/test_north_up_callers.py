@@ -29,7 +29,7 @@ def test_simulator_surface_reads_a_south_up_dem():
 
 
 def test_certificate_and_exporters_read_a_south_up_product():
-    from toolkit.certify_io import read_dem
+    from toolkit.dem_io import read_dem
     from toolkit.export._product import read_product
 
     north, south = _pair()

@@ -25,7 +25,7 @@ SAME_LINE_M = 0.01
 
 def breakline_rows(provenance: Mapping[str, Any]) -> list[dict[str, Any]]:
     """One row per breakline of the map whose product attributes are ``provenance``
-    (:attr:`toolkit.certify_io.DemRaster.provenance`); ``[]`` for a map without.
+    (:attr:`toolkit.dem_io.DemRaster.provenance`); ``[]`` for a map without.
 
     Each row: ``line`` (1-based), ``n_vertices``, ``length_m``, ``step_m`` and ``step_sd_m``
     (the GLS height up to the line's left, m; its 1-sigma carries the width's own),

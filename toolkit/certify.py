@@ -36,15 +36,8 @@ from .breakline_record import breakline_block
 from .certify_bias import bias_assessment
 from .certify_heights import checkpoints_in_dem_datum
 from .certify_heldout import heldout_block
-from .certify_io import (
-    Checkpoints,
-    DemRaster,
-    as_checkpoints,
-    read_checkpoints,
-    read_dem,
-    reproject_checkpoints,
-    sample_bilinear,
-)
+from .certify_io import Checkpoints, as_checkpoints, read_checkpoints, reproject_checkpoints
+from .dem_io import DemRaster, read_dem, sample_bilinear
 
 __all__ = [
     "CONVENTIONAL_INTERVALS_M",
@@ -389,6 +382,7 @@ def certify(
             "reprojected": reprojected,
             "columns": cps.columns,
             "ignored_columns": list(cps.ignored_columns),
+            **({"read": cps.note} if cps.note else {}),  # a GIS layer: its vertices, layers
             "n_total": cps.n,
             "n_used": n,
             "n_dropped": cps.n - n,

@@ -37,7 +37,7 @@ def checkpoints_in_dem_datum(
     Parameters
     ----------
     cps : toolkit.certify_io.Checkpoints
-    raster : toolkit.certify_io.DemRaster
+    raster : toolkit.dem_io.DemRaster
     dem_heights, checkpoint_heights : str, optional
         ``"ellipsoidal"``, ``"egm96"`` or ``"egm2008"`` where the DEM / the checkpoints do
         not state their datum (an option that contradicts their own statement is an error).

@@ -1,18 +1,16 @@
-"""Inputs of the accuracy certificate: checkpoint tables and DEMs (used by :mod:`toolkit.certify`).
+"""Checkpoint tables, the accuracy certificate's independent points (:mod:`toolkit.certify`).
 
-- :func:`read_checkpoints` — CSV / Parquet checkpoints with x, y, z[, z_std, crs] (metres),
-  header aliases in :data:`COLUMN_ALIASES`, coordinates in any CRS pyproj knows;
+- :func:`read_checkpoints` — CSV / Parquet / GIS-layer checkpoints with x, y, z[, z_std,
+  crs] (metres), header aliases in :data:`COLUMN_ALIASES`, coordinates in any CRS pyproj knows;
   :func:`as_checkpoints` also takes a mapping / DataFrame of those columns.
 - :func:`reproject_checkpoints` — checkpoint coordinates in the DEM's CRS (pyproj).
-- :func:`read_dem` — a terrain product Dataset, a truth DataArray, a GeoTIFF or a NetCDF file.
-- :func:`sample_bilinear` — strict bilinear sampling between cell centres (NaN near nodata).
+
+The DEMs they are checked against are read by :mod:`toolkit.dem_io`.
 """
 
 from __future__ import annotations
 
 import difflib
-import hashlib
-import json
 import math
 import os
 from dataclasses import dataclass, field, replace
@@ -23,22 +21,19 @@ import numpy as np
 from pyproj import CRS
 
 from factorgraph.field.table import header_key, read_text_table, sidecar_crs
-from terrain import Grid
-from terrain.dem_projection import Footprint, dem_lattice, raster_footprint
 from terrain.errors import bad_input
-from terrain.grid import check_same_crs, north_up
+from terrain.grid import check_same_crs
 
 from .provenance import file_sha256
 
 __all__ = [
     "COLUMN_ALIASES",
     "Checkpoints",
-    "DemRaster",
     "as_checkpoints",
+    "layer_columns",
     "read_checkpoints",
-    "read_dem",
+    "read_layer_table",
     "reproject_checkpoints",
-    "sample_bilinear",
 ]
 
 _COLUMNS = ("x", "y", "z")
@@ -64,7 +59,6 @@ COLUMN_ALIASES: dict[str, tuple[str, ...]] = {
 }
 _ALIAS = {a: c for c, names in COLUMN_ALIASES.items() for a in names}
 _ALIAS_TEXT = "; ".join(f"{c}: {'/'.join(names)}" for c, names in COLUMN_ALIASES.items())
-_GEOREF = frozenset({"crs", "crs_wkt", "transform", "resolution"})
 
 
 # --------------------------------------------------------------------------- checkpoints
@@ -90,6 +84,9 @@ class Checkpoints:
         Which header became which column (``{"x": "easting", ...}``) when read from a table.
     ignored_columns : tuple of str
         Headers that are none of :data:`COLUMN_ALIASES` (ids, notes): kept out, listed.
+    note : str
+        How a GIS layer was read (its layers, lines' vertices, attributes left out); "" for
+        a table.
     """
 
     xy: np.ndarray
@@ -100,6 +97,7 @@ class Checkpoints:
     sha256: str | None = None
     columns: dict[str, str] = field(default_factory=dict)
     ignored_columns: tuple[str, ...] = ()
+    note: str = ""
 
     def __post_init__(self) -> None:
         xy = np.asarray(self.xy, dtype=float)
@@ -239,13 +237,19 @@ def _column(values: Any, where: str) -> np.ndarray:
 
 
 def _from_columns(
-    cols: dict[str, Any], name: str, crs: Any, path: Path | None, sha256: str | None
+    cols: dict[str, Any],
+    name: str,
+    crs: Any,
+    path: Path | None,
+    sha256: str | None,
+    declared: tuple[Any, str] | None = None,
+    note: str = "",
 ) -> Checkpoints:
     cols, used, unknown = _canonical(cols, name)
     arr = {
         c: _column(cols[c], f"{name} column {used[c]}") for c in (*_COLUMNS, "z_std") if c in cols
     }
-    found = _file_crs(path, cols)
+    found = _file_crs(path, cols) if declared is None else declared
     resolved = None if crs is None else any_crs(crs, "crs")
     if found is not None:
         file_crs = any_crs(found[0], f"{name} {found[1]}")
@@ -256,12 +260,55 @@ def _from_columns(
         raise bad_input(f"{name} columns", n, "columns of one length", "check the table")
     xy = np.column_stack([arr["x"], arr["y"]]).reshape(-1, 2)
     return Checkpoints(
-        xy, arr["z"], arr.get("z_std"), resolved, name, sha256, used, tuple(map(str, unknown))
+        xy, arr["z"], arr.get("z_std"), resolved, name, sha256, used, tuple(map(str, unknown)), note
     )
 
 
+def layer_columns(path: Path, name: str) -> tuple[dict[str, Any], tuple[Any, str] | None, str]:
+    """A GIS layer (:func:`toolkit.point_files.read_vector_points`) as table columns: ``x, y``
+    its vertices, ``z`` the geometry's Z or the height attribute, every other attribute.
+
+    Attributes naming a position (``easting``, ``lon``...) are left out (the geometry is the
+    position; said); a height attribute must agree with a geometry Z to 1 mm.
+
+    Returns
+    -------
+    (columns, declared, note)
+        ``declared`` is ``(crs, "layer CRS")`` or None.
+    """
+    from .point_files import read_vector_points
+
+    layer = read_vector_points(path, name)
+    notes = [layer.note] if layer.note else []
+    cols: dict[str, Any] = {}
+    for header, values in layer.fields.items():
+        canon = _ALIAS.get(_header_key(header))
+        if canon in ("x", "y", "crs"):
+            notes.append(f"attribute {header!r} not read: the geometry is the position")
+        elif canon == "z" and layer.z is not None:
+            height = _column(values, f"{name} attribute {header}")
+            worst = np.nanmax(np.abs(height - layer.z), initial=0.0)
+            if not worst <= 1e-3:
+                raise bad_input(
+                    f"{name} heights",
+                    f"geometry Z and attribute {header!r} differ by up to {worst:.3g} m",
+                    "one height per point: the geometry's Z, or an attribute",
+                    f"drop the attribute {header!r} or the Z (ogr2ogr -dim XY)",
+                )
+            notes.append(f"attribute {header!r} agrees with the geometry's Z")
+        else:
+            cols[header] = values
+    cols.update({"x": layer.xy[:, 0], "y": layer.xy[:, 1]})
+    if layer.z is not None:
+        cols["z"] = layer.z
+    declared = None if layer.crs is None else (layer.crs, "layer CRS")
+    return cols, declared, "; ".join(notes)
+
+
 def read_checkpoints(path: str | os.PathLike, crs: Any = None) -> Checkpoints:
-    """Read checkpoints from CSV (header row) or Parquet (``.parquet``).
+    """Read checkpoints from CSV (header row), Parquet (``.parquet``) or a GIS point layer
+    (GeoPackage, Shapefile, GeoJSON...: :func:`layer_columns`; the height the geometry's Z
+    or an attribute, the CRS the layer's).
 
     Parameters
     ----------
@@ -285,11 +332,36 @@ def read_checkpoints(path: str | os.PathLike, crs: Any = None) -> Checkpoints:
     terrain.errors.CRSMismatchError
         The ``crs`` argument and the file's CRS differ.
     """
+    from .point_files import point_format
+
     path = Path(path)
     if not path.is_file():
-        raise bad_input("CHECKPOINTS", str(path), "an existing CSV or Parquet file", "check it")
+        raise bad_input(
+            "CHECKPOINTS", str(path), "an existing CSV, Parquet or GIS point file", "check it"
+        )
     digest = file_sha256(path)
+    kind = point_format(path)
+    if kind == "las":
+        raise bad_input(
+            "CHECKPOINTS",
+            path.name,
+            "independent check points (a table or a GIS point layer), not a point cloud",
+            "map the cloud with glacimap reconstruct; survey checkpoints apart from it",
+        )
+    if kind == "vector":
+        return read_layer_table(path, crs, digest)[0]
     return _from_columns(_table(path), path.name, crs, path, digest)
+
+
+def read_layer_table(
+    path: Path, crs: Any = None, sha256: str | None = None, field: str = "CHECKPOINTS"
+) -> tuple[Checkpoints, dict[str, Any]]:
+    """A GIS layer's points as :class:`Checkpoints` and the columns they were read from
+    (:func:`layer_columns`; ``glacimap reconstruct`` reads its noise columns there); errors
+    name ``field``."""
+    cols, declared, note = layer_columns(path, field)
+    digest = file_sha256(path) if sha256 is None else sha256
+    return _from_columns(cols, path.name, crs, None, digest, declared, note), cols
 
 
 def as_checkpoints(obj: Any, crs: Any = None) -> Checkpoints:
@@ -332,161 +404,3 @@ def reproject_checkpoints(
         "operation": tr.description,
     }
     return out, note
-
-
-# --------------------------------------------------------------------------- the DEM
-@dataclass(frozen=True)
-class DemRaster:
-    """A DEM loaded for certification.
-
-    Attributes
-    ----------
-    grid : terrain.Grid or terrain.dem_projection.Footprint
-        North-up raster definition (cell centres): a Grid in a projected CRS (metres), a
-        Footprint in a geographic one (degrees).
-    elevation : ndarray of shape grid.shape
-        Elevation, metres; NaN on nodata.
-    elevation_std : ndarray of shape grid.shape or None
-        1-sigma band (m) when the DEM carries one.
-    source : dict
-        ``kind`` (``"dataset"``, ``"geotiff"``, ``"netcdf"``), ``name`` and ``sha256``.
-    provenance : dict of str
-        Non-georeferencing attributes / tags (seed, method, kernel, ...).
-    """
-
-    grid: Grid | Footprint
-    elevation: np.ndarray
-    elevation_std: np.ndarray | None
-    source: dict[str, Any]
-    provenance: dict[str, str] = field(default_factory=dict)
-
-
-def _provenance(attrs: dict[str, Any]) -> dict[str, str]:
-    out = {}
-    for key in sorted(attrs, key=str):
-        value = attrs[key]
-        if str(key) in _GEOREF or str(key).startswith("_"):
-            continue
-        value = value.tolist() if isinstance(value, np.ndarray | np.generic) else value
-        out[str(key)] = value if isinstance(value, str) else json.dumps(value, default=str)
-    return out
-
-
-def _from_xarray(obj: Any, source: dict[str, Any]) -> DemRaster:
-    import xarray as xr
-
-    if isinstance(obj, xr.Dataset):
-        if "elevation" not in obj.data_vars:
-            raise bad_input(
-                "DEM variables", sorted(map(str, obj.data_vars)), "'elevation' (m)", "rename it"
-            )
-        elev, std = obj["elevation"], obj.get("elevation_std")
-    elif isinstance(obj, xr.DataArray):
-        elev, std = obj, None
-    else:
-        raise bad_input("dem", type(obj).__name__, "a Dataset, DataArray or file path", "")
-    if tuple(elev.dims) != ("y", "x"):
-        raise bad_input("DEM dims", tuple(elev.dims), "('y', 'x')", "ds.transpose('y', 'x')")
-    obj, elev = north_up(obj), north_up(elev)  # rows north first, as the grid's
-    std = None if std is None else north_up(std)
-    fp = raster_footprint(obj)  # a DEM in degrees is certified on its own cells
-    grid = fp if fp.crs.is_geographic else Grid.from_dataarray(obj)
-    z = np.asarray(elev.values, dtype=float)
-    s = None if std is None else np.asarray(std.values, dtype=float)
-    if source.get("sha256") is None:
-        h = hashlib.sha256(np.ascontiguousarray(z).tobytes())
-        if s is not None:
-            h.update(np.ascontiguousarray(s).tobytes())
-        source = {
-            **source,
-            "sha256": h.hexdigest(),
-            # not a file's hash (a reader checking elevation.tif's would find another)
-            "sha256_of": "the in-memory map's float64 elevation"
-            + (" and elevation_std" if s is not None else "")
-            + " arrays (rows north first, C order), not a file",
-        }
-    return DemRaster(grid, z, s, source, _provenance(dict(obj.attrs)))
-
-
-def _from_geotiff(path: Path, source: dict[str, Any]) -> DemRaster:
-    import rasterio
-    from rasterio.errors import RasterioIOError
-
-    try:
-        src = rasterio.open(path)
-    except RasterioIOError as exc:
-        raise bad_input("DEM", path.name, "a readable GeoTIFF", str(exc)) from exc
-    with src:
-        if src.crs is None:
-            raise bad_input(
-                "DEM crs",
-                path.name,
-                "a GeoTIFF with a CRS",
-                "assign one, e.g. gdal_edit.py -a_srs EPSG:32608 DEM.tif",
-            )
-        t = src.transform
-        if t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
-            raise bad_input("DEM transform", tuple(t)[:6], "north-up, no rotation", "gdalwarp it")
-        grid = dem_lattice(t, (src.height, src.width), src.crs)  # degrees allowed
-
-        def band(i: int) -> np.ndarray:
-            return np.ma.filled(src.read(i, masked=True).astype(float), np.nan)
-
-        descriptions = list(src.descriptions)
-        std = (
-            band(descriptions.index("elevation_std") + 1)
-            if "elevation_std" in descriptions
-            else None
-        )
-        return DemRaster(grid, band(1), std, source, _provenance(src.tags()))
-
-
-def read_dem(dem: Any) -> DemRaster:
-    """Load a DEM: a terrain product ``xarray.Dataset`` (or truth ``DataArray``), a GeoTIFF
-    (band 1 elevation; a band described ``elevation_std`` is the 1-sigma; nodata masked) or
-    a NetCDF terrain product (``.nc``).
-
-    Raises
-    ------
-    terrain.errors.InputError
-        Missing file, unknown extension, a GeoTIFF without CRS or not north-up, a Dataset
-        without ``elevation``. A DEM in degrees (SRTM, GLO-30) is read on its own cells.
-    """
-    if not isinstance(dem, str | os.PathLike):
-        return _from_xarray(dem, {"kind": "dataset", "name": type(dem).__name__, "sha256": None})
-    path = Path(dem)
-    if not path.is_file():
-        raise bad_input("DEM", str(path), "an existing GeoTIFF or NetCDF file", "check the path")
-    suffix = path.suffix.lower()
-    source = {
-        "name": path.name,
-        "path": str(path),  # as given: glacimap report finds the DEM again by it
-        "sha256": file_sha256(path),
-    }
-    if suffix in (".tif", ".tiff"):
-        return _from_geotiff(path, {"kind": "geotiff", **source})
-    if suffix == ".nc":
-        import xarray as xr
-
-        with xr.open_dataset(path) as ds:
-            return _from_xarray(ds.load(), {"kind": "netcdf", **source})
-    raise bad_input("DEM", path.name, "a .tif/.tiff GeoTIFF or .nc product", "convert it")
-
-
-def sample_bilinear(grid: Grid, values: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Bilinear interpolation between cell centres, NaN if any neighbour with weight > 0 is
-    NaN (strict: a checkpoint next to nodata is not scored). Points between the outer cell
-    edge and the outermost centres take the edge cells' values (clamped)."""
-    dx, dy = grid.resolution
-    col = np.clip((xy[:, 0] - grid.x[0]) / dx, 0, grid.nx - 1)
-    row = np.clip((grid.y[0] - xy[:, 1]) / dy, 0, grid.ny - 1)
-    c0 = np.minimum(np.floor(col).astype(int), max(grid.nx - 2, 0))
-    r0 = np.minimum(np.floor(row).astype(int), max(grid.ny - 2, 0))
-    fc, fr = col - c0, row - r0
-    out = np.zeros(len(xy))
-    for dr, wr in ((0, 1 - fr), (1, fr)):
-        for dc, wc in ((0, 1 - fc), (1, fc)):
-            v = values[np.minimum(r0 + dr, grid.ny - 1), np.minimum(c0 + dc, grid.nx - 1)]
-            w = wr * wc
-            out += np.where(w > 0, w * v, 0.0)  # NaN * w > 0 stays NaN
-    return out

@@ -26,7 +26,7 @@ from terrain.errors import bad_input
 from terrain.metrics import calibration_curve
 
 from .certify import check_output_path
-from .certify_io import DemRaster, read_dem
+from .dem_io import DemRaster, read_dem
 
 __all__ = ["CHI2_2D_95", "write_report"]
 
@@ -323,7 +323,7 @@ def write_report(
         Output ``.html`` file in an existing, writable folder; written atomically.
     product : xarray.Dataset or path-like
         Terrain product (``elevation``, ``elevation_std`` in m on ``(y, x)``), or a NetCDF /
-        GeoTIFF file (:func:`toolkit.certify_io.read_dem`).
+        GeoTIFF file (:func:`toolkit.dem_io.read_dem`).
     certificate : dict or path-like
         Output of :func:`toolkit.certify.certify`, or its JSON file.
     truth : xarray.DataArray or ndarray of shape (ny, nx), optional

@@ -17,7 +17,7 @@ from terrain.grid import utm_crs
 
 from .certify_io import read_checkpoints
 
-__all__ = ["SampleTable", "grid_like", "read_sample_files", "read_samples", "sample_columns"]
+__all__ = ["SampleTable", "read_sample_files", "read_samples", "sample_columns"]
 
 #: Optional columns of a samples table (what ``glacimap localize`` / ``process`` write).
 OPTIONAL = ("z_var", "track_z_std_m", "shared_offset_std_m", "t_s")
@@ -28,6 +28,9 @@ class SampleTable:
 
     def __init__(self, samples: ElevationSamples, track: np.ndarray, shared: float, note: str):
         self.samples, self.track_z_std, self.shared_z_std, self.note = samples, track, shared, note
+        #: The samples were made from the files (a GNSS log's fixes, a layer's or a cloud's
+        #: points, block means): ``reconstruct`` writes them beside the map.
+        self.derived = False
 
 
 def _crs_hint(table: Any) -> str:
@@ -79,6 +82,7 @@ def read_samples(
     crs: Any = None,
     antenna_height_m: float | None = None,
     gnss_heights: str | None = None,
+    point_classes: tuple[int, ...] | None = None,
 ) -> SampleTable:
     """Read ``x, y, z[, z_var, track_z_std_m, shared_offset_std_m, t_s]`` (aliases as for
     checkpoints: easting/northing/elevation, lon/lat/height...). ``t_s`` (each sample's mean
@@ -86,7 +90,10 @@ def read_samples(
     :func:`terrain.volume_change` needs it; a file without it still reads (the term is then
     stated as not available). A GNSS log (NMEA, GPX, RTKLIB ``.pos``) is read as its fixes
     (:func:`toolkit.gnss_samples.read_gnss_samples`, less ``antenna_height_m``, its heights
-    of unstated datum on ``gnss_heights``, default ``"auto"``).
+    of unstated datum on ``gnss_heights``, default ``"auto"``). A GIS layer (GeoPackage,
+    Shapefile, GeoJSON...) is read as its points' or lines' vertices with their attributes as
+    the columns (:func:`toolkit.certify_io.read_layer_table`); a LAS / LAZ cloud as its
+    ground points, or ``point_classes`` (:func:`toolkit.point_files.read_las`).
 
     Raises
     ------
@@ -95,10 +102,21 @@ def read_samples(
         antenna height for a CSV (its z is the surface's).
     """
     from .gnss_samples import gnss_format, read_gnss_samples
+    from .point_files import point_format
 
     path = Path(path)
     if not path.is_file():
-        raise bad_input("SAMPLES", str(path), "an existing CSV or GNSS file", "check the path")
+        raise bad_input(
+            "SAMPLES", str(path), "an existing CSV, GNSS, GIS or LAS file", "check the path"
+        )
+    kind = point_format(path)
+    if point_classes is not None and kind != "las":
+        raise bad_input(
+            "--point-classes",
+            ",".join(map(str, point_classes)),
+            "a LAS / LAZ point cloud as SAMPLES (classes are a cloud's)",
+            "drop --point-classes",
+        )
     if gnss_format(path) is not None:
         samples, track, note = read_gnss_samples(
             path, crs, antenna_height_m or 0.0, gnss_heights or "auto"
@@ -118,7 +136,17 @@ def read_samples(
             "a GNSS log (NMEA, GPX, RTKLIB .pos) as SAMPLES: a CSV's z is read as given",
             f"convert {path.name}'s heights to the survey's datum, or drop --gnss-heights",
         )
-    table = read_checkpoints(path, crs=crs)
+    if kind == "las":
+        return _cloud_samples(path, crs, point_classes)
+    if kind == "vector":  # the layer's attributes are the columns
+        from .certify_io import read_layer_table
+
+        table, cells = read_layer_table(path, crs, field="SAMPLES")
+    else:
+        import pandas as pd  # a quoted crs column (a WKT with commas) is one field
+
+        table = read_checkpoints(path, crs=crs)
+        cells = read_text_table(path, "SAMPLES").columns()  # the checkpoints' delimiters
     if table.crs is None:
         raise bad_input(
             "--crs",
@@ -127,9 +155,8 @@ def read_samples(
             "--crs)",
             _crs_hint(table) + "; glacimap never guesses it",
         )
-    import pandas as pd  # a quoted crs column (a WKT with commas) is one field
+    import pandas as pd
 
-    cells = read_text_table(path, "SAMPLES").columns()  # the checkpoints' delimiters, encodings
     extra_cols = {
         c: pd.to_numeric(pd.Series(v), errors="coerce").to_numpy(float) for c, v in cells.items()
     }
@@ -144,22 +171,11 @@ def read_samples(
             "a finite x, y and z on every row",
             f"fill or delete those lines of {path.name}",
         )
-    xy, note, map_crs = table.xy, "", table.crs
-    if not map_crs.is_geographic:
+    if not table.crs.is_geographic:
         _check_not_degrees(table, path)
-    if map_crs.is_geographic:
-        lon, lat = np.median(xy, axis=0)  # the samples' median position
-        map_crs = utm_crs(lon, lat)
-        if map_crs is None:
-            raise bad_input(
-                "SAMPLES coordinates",
-                f"lon {lon:.3f}, lat {lat:.3f}",
-                "a site inside UTM's latitudes (80 S - 84 N) to be projected to its zone",
-                "project them to a polar stereographic CRS (EPSG:3031 / 3413) and pass --crs",
-            )
-        tr = Transformer.from_crs(table.crs, map_crs, always_xy=True)
-        xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
-        note = f"geographic coordinates projected to {map_crs.to_string()} ({map_crs.name})"
+    xy, map_crs, note = _projected(table.xy, table.crs)
+    if table.note:  # how a GIS layer was read
+        note = f"{table.note}; {note}" if note else table.note
     z_var, noise_note = _noise(table, extra_cols, names)
     unread = [c for c in table.ignored_columns if str(c).lower() not in OPTIONAL]
     for extra_note in (
@@ -210,6 +226,56 @@ def read_samples(
     return SampleTable(samples, np.asarray(track, float), shared, note)
 
 
+def _projected(xy: np.ndarray, crs: CRS) -> tuple[np.ndarray, CRS, str]:
+    """``xy`` in a projected CRS: as they are, or from degrees to their UTM zone (said)."""
+    if not crs.is_geographic:
+        return xy, crs, ""
+    lon, lat = np.median(xy, axis=0)  # the samples' median position
+    map_crs = utm_crs(lon, lat)
+    if map_crs is None:
+        raise bad_input(
+            "SAMPLES coordinates",
+            f"lon {lon:.3f}, lat {lat:.3f}",
+            "a site inside UTM's latitudes (80 S - 84 N) to be projected to its zone",
+            "project them to a polar stereographic CRS (EPSG:3031 / 3413) and pass --crs",
+        )
+    tr = Transformer.from_crs(crs, map_crs, always_xy=True)
+    xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
+    return (
+        xy,
+        map_crs,
+        f"geographic coordinates projected to {map_crs.to_string()} ({map_crs.name})",
+    )
+
+
+def _cloud_samples(path: Path, crs: Any, classes: tuple[int, ...] | None) -> SampleTable:
+    """A LAS / LAZ cloud's kept points as samples in its header's CRS (or ``crs``, which
+    must agree), projected when in degrees; points at one x, y averaged (counted)."""
+    from terrain.grid import check_same_crs
+
+    from .certify_io import any_crs
+    from .point_files import read_las
+
+    cloud = read_las(path, "SAMPLES", classes)
+    given = None if crs is None else any_crs(crs, "--crs")
+    if cloud.crs is not None:
+        check_same_crs(given, cloud.crs, "--crs", f"{path.name} (LAS header)")
+    use = cloud.crs if cloud.crs is not None else given
+    if use is None:
+        raise bad_input(
+            "--crs",
+            None,
+            f"the CRS of {path.name}'s points (its header names none)",
+            "pass --crs EPSG:326zz (the cloud's CRS); glacimap never guesses it",
+        )
+    xy, map_crs, moved = _projected(cloud.xy, use)
+    samples = ElevationSamples(xy, cloud.z, 0.0, crs=map_crs.to_string(), duplicates="average")
+    notes = [cloud.note, moved, "a cloud states no per-point noise"]
+    if samples.n_merged:
+        notes.append(f"{samples.n_merged:,} points at the x, y of another averaged")
+    return SampleTable(samples, np.zeros(samples.n), 0.0, "; ".join(n for n in notes if n))
+
+
 def _noise(table: Any, extra_cols: dict[str, np.ndarray], names: dict[str, str]):
     """The samples' noise variance (m^2) and a note saying where it came from: ``z_var``
     (m^2), else a 1-sigma column (m; the checkpoint aliases: sigma, z_std, elevation_std...)
@@ -238,77 +304,6 @@ def _noise(table: Any, extra_cols: dict[str, np.ndarray], names: dict[str, str])
     )
 
 
-def grid_like(path: str | Path, table: SampleTable) -> tuple[Any, SampleTable, str]:
-    """The map grid of ``--like RASTER`` and the samples in its CRS.
-
-    A raster in another projected CRS than the samples: the samples' x, y are projected into
-    the raster's CRS (heights unchanged), so the map lands on the raster's own cells (to
-    difference it with that raster, say). A raster in a geographic CRS is refused: the GP's
-    distances are in metres.
-
-    Returns
-    -------
-    (terrain.Grid, SampleTable, str)
-        The raster's grid, the samples in its CRS, and a note saying what was projected ("" when
-        nothing was).
-
-    Raises
-    ------
-    InputError
-        No file, a raster GDAL cannot read or without a CRS, a geographic CRS, or a raster that
-        holds none of the samples.
-    """
-    import rasterio
-    from rasterio.errors import RasterioIOError
-
-    from .certify_io import read_dem
-
-    path = Path(path)
-    if not path.is_file():
-        raise bad_input("--like", str(path), "an existing raster file", "check the path")
-    try:
-        with rasterio.open(path) as src:
-            crs = None if src.crs is None else CRS.from_wkt(src.crs.to_wkt())
-    except RasterioIOError as exc:
-        raise bad_input("--like", path.name, "a raster GDAL can read", str(exc)) from exc
-    if crs is None:
-        raise bad_input(
-            "--like", path.name, "a raster with a CRS", "set it (gdal_edit.py -a_srs EPSG:...)"
-        )
-    target = table.samples.crs
-    if crs.is_geographic:
-        raise bad_input(
-            "--like",
-            f"{path.name} ({crs.name})",
-            "a raster in a projected CRS in metres (the map's distances are metres)",
-            f"reproject it first (gdalwarp -t_srs {target.to_string()} {path.name} OUT.tif) "
-            "or pass --bounds W S E N and --resolution",
-        )
-    grid = read_dem(path).grid
-    samples, note = table.samples, ""
-    if not grid.crs.equals(target, ignore_axis_order=True):
-        tr = Transformer.from_crs(target, grid.crs, always_xy=True)
-        xy = np.column_stack(tr.transform(samples.xy[:, 0], samples.xy[:, 1]))
-        samples = ElevationSamples(
-            xy, samples.z, samples.z_var, crs=grid.crs, extra=dict(samples.extra)
-        )
-        note = (
-            f"samples projected from {target.to_string()} to {path.name}'s CRS "
-            f"{grid.crs.to_string()} ({grid.crs.name}); heights unchanged"
-        )
-    x, y = samples.xy[:, 0], samples.xy[:, 1]
-    w, s, e, n = grid.bounds
-    if not ((x >= w) & (x <= e) & (y >= s) & (y <= n)).any():
-        raise bad_input(
-            "--like",
-            f"{path.name} (bounds {w:.1f}, {s:.1f}, {e:.1f}, {n:.1f}, {grid.crs.to_string()})",
-            f"a raster whose extent holds some of the {samples.n} samples",
-            "check that the samples' CRS (--crs) and the raster's are right",
-        )
-    out = SampleTable(samples, table.track_z_std, table.shared_z_std, table.note)
-    return grid, out, note
-
-
 def sample_columns(table: SampleTable) -> dict[str, np.ndarray]:
     """``table`` as the columns :func:`read_samples` reads back (``x, y, z, z_var,
     track_z_std_m, shared_offset_std_m[, t_s], crs``), as ``glacimap localize`` writes them."""
@@ -332,18 +327,42 @@ def read_sample_files(
     crs: Any = None,
     antenna_height_m: float | None = None,
     gnss_heights: str | None = None,
+    point_classes: tuple[int, ...] | None = None,
+    block_size: float | str | None = None,
 ) -> SampleTable:
-    """:func:`read_samples` of several files (CSVs and GNSS logs: a survey's days), as one
-    table in the first file's CRS (``crs``, else the first file's own or its fixes' UTM
-    zone; every later file is read into it). Positions repeated across files are merged as
-    within one (:class:`terrain.ElevationSamples`); ``t_s`` is kept when every file has it.
+    """:func:`read_samples` of several files (CSVs, GNSS logs, GIS layers, point clouds: a
+    survey's days), as one table in the first file's CRS (``crs``, else the first file's own
+    or its fixes' UTM zone; every later file is read into it). Positions repeated across
+    files are merged as within one (:class:`terrain.ElevationSamples`); ``t_s`` is kept when
+    every file has it. ``block_size`` reduces dense points to block means
+    (:func:`toolkit.sample_blocks.reduce_table`; None, the default, keeps every sample; the
+    CLI's default is ``"auto"``).
     """
+    from .gnss_samples import gnss_format
+    from .point_files import point_format
+    from .sample_blocks import reduce_table
+
     paths = [Path(p) for p in paths]
-    first = read_samples(paths[0], crs, antenna_height_m, gnss_heights)
+    table = _joined(paths, crs, antenna_height_m, gnss_heights, point_classes)
+    table, reduced = reduce_table(table, block_size)
+    table.derived = reduced is not None or any(gnss_format(p) or point_format(p) for p in paths)
+    return table
+
+
+def _joined(
+    paths: list[Path],
+    crs: Any,
+    antenna_height_m: float | None,
+    gnss_heights: str | None,
+    classes: tuple[int, ...] | None,
+) -> SampleTable:
+    first = read_samples(paths[0], crs, antenna_height_m, gnss_heights, classes)
     if len(paths) == 1:
         return first
     into = first.samples.crs.to_string()
-    tables = [first] + [read_samples(p, into, antenna_height_m, gnss_heights) for p in paths[1:]]
+    tables = [first] + [
+        read_samples(p, into, antenna_height_m, gnss_heights, classes) for p in paths[1:]
+    ]
     for t in tables[1:]:  # a later file was read into the first one's CRS, not one given
         t.note = (t.note or "").replace("(the CRS given)", f"(the CRS of {paths[0].name})")
     for p, t in zip(paths[1:], tables[1:], strict=True):

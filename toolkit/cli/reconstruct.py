@@ -144,6 +144,22 @@ def reconstruct(
             "samples' datum and says so; without, it says the datum is not stated.",
         ),
     ] = None,
+    block_size: Annotated[
+        str,
+        typer.Option(
+            "--block-size",
+            help="Dense points (lidar, drone clouds) as block means: auto (a survey of over "
+            "100,000 samples reduced to at most 50,000), none, or a block edge in metres.",
+        ),
+    ] = "auto",
+    point_classes: Annotated[
+        str | None,
+        typer.Option(
+            "--point-classes",
+            help="LAS / LAZ as SAMPLES: the ASPRS classes to map, e.g. 2,9 (default: ground, "
+            "class 2, when classified; else all but noise).",
+        ),
+    ] = None,
     prior_as: Annotated[
         str | None,
         typer.Option(
@@ -161,14 +177,16 @@ def reconstruct(
     glacimap run / process (kernel by evidence, the prior DEM's offset fitted, total and
     relative 1-sigma, COG, contours, mesh; a certificate and report with --checkpoints).
     A GNSS log (a kinematic profile) is read as its fixes, projected to --crs or their UTM
-    zone; the samples it gave are written as samples.csv beside the map.
+    zone; a GIS layer (GeoPackage, Shapefile, GeoJSON: points or contour lines) as its
+    vertices; a LAS / LAZ cloud as its ground points, in block means when dense
+    (--block-size). The samples they gave are written as samples.csv beside the map.
     """
     samples = samples or None  # typer gives [] for none
     if demo == (samples is not None):
         raise bad_input(
             "SAMPLES / --demo",
             None if samples is None else [str(p) for p in samples],
-            "exactly one of: sample files (CSV or GNSS logs), or --demo",
+            "exactly one of: sample files (CSV, GNSS logs, GIS layers, LAS / LAZ), or --demo",
             "pass the survey's files, or --demo",
         )
     if bounds is not None and like is not None:
@@ -186,6 +204,15 @@ def reconstruct(
 
         fix = "the samples' horizontal 1-sigma in metres, e.g. --horizontal-sd 12"
         horizontal_sd = positive_number("--horizontal-sd", horizontal_sd, fix, allow_zero=True)
+    from ..point_files import point_classes_option
+    from ..sample_blocks import block_size_option
+
+    reading = {  # how the sample files are read, checked before anything is
+        "antenna_height_m": antenna_height,
+        "gnss_heights": gnss_heights,
+        "point_classes": point_classes_option(point_classes),
+        "block_size": block_size_option(block_size),
+    }
     from ..export._files import output_folder
 
     with output_folder(out) as out_dir:  # a failed run leaves no empty --out behind
@@ -214,9 +241,8 @@ def reconstruct(
             config,
             lines,
             horizontal_sd,
-            antenna_height,
+            reading,
             prior_as,
-            gnss_heights,
             samples_heights,
         )
 
@@ -243,8 +269,7 @@ def _file(lines: Any) -> Any:
 
 def _reconstruct_csv(
     samples, out_dir, overrides, resolution, crs, prior, bounds, like, cps, cfg, lines=None,
-    horizontal_sd=None, antenna_height=None, prior_as=None, gnss_heights=None,
-    samples_heights=None,
+    horizontal_sd=None, reading=None, prior_as=None, samples_heights=None,
 ):  # fmt: skip
     import warnings
 
@@ -252,11 +277,11 @@ def _reconstruct_csv(
 
     from ..config import load_scenario
     from ..export._files import previous_products, remove_stale, staged_folder
-    from ..gnss_samples import gnss_format
+    from ..grid_like import grid_like
     from ..processing import prior_as_data, prior_mean
     from ..products import write_csv, write_map_products
     from ..provenance import input_record
-    from ..samples_io import grid_like, read_sample_files, sample_columns, samples_height_attrs
+    from ..samples_io import read_sample_files, sample_columns, samples_height_attrs
     from ..stages import certify_stage, map_grid, reconstruct_stage
 
     settings = load_scenario(cfg, overrides)
@@ -267,7 +292,7 @@ def _reconstruct_csv(
         lines = given if given[0] is not None else None
     seed = int(overrides["seed"])
     heights = samples_height_attrs(samples, samples_heights)  # before the read: fails fast
-    table = read_sample_files(samples, crs, antenna_height, gnss_heights)
+    table = read_sample_files(samples, crs, **(reading or {}))
     if table.note:
         console.print(f"[yellow]note:[/] {escape(str(table.note))}")
     if like is not None:  # the raster's own cells; samples projected into its CRS if need be
@@ -373,7 +398,7 @@ def _reconstruct_csv(
     before = previous_products(out_dir, SUMMARY)
     with staged_folder(out_dir) as tmp:
         write_map_products(tmp, rec, cert, settings)
-        if any(gnss_format(p) for p in samples):  # the samples a log gave: change reads them
+        if table.derived:  # the samples a log, layer or cloud gave: change reads them
             write_csv(tmp / "samples.csv", sample_columns(table))
         written = sorted([p.name for p in tmp.iterdir()] + [SUMMARY])
         summary = {"seed": seed, "samples": data.n, "grid": list(grid.shape), "products": written}

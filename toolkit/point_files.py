@@ -1,0 +1,259 @@
+"""Survey points from GIS layers and point clouds, for ``glacimap reconstruct`` and ``certify``.
+
+- **GIS layers** (GeoPackage, Shapefile, GeoJSON, FlatGeobuf, KML, GML... anything GDAL
+  reads, through pyogrio): points, multipoints, or lines (digitised contours: every vertex
+  is a sample). The height is the geometry's Z or an attribute named as a checkpoint
+  column is (``z``, ``elevation``, ``elev``, ``height``...; :data:`toolkit.certify_io.
+  COLUMN_ALIASES`), a 1-sigma attribute likewise (``z_std``, ``sigma``...); the position is
+  the geometry's, in the CRS the layer declares. Polygons are refused (their vertices are
+  not survey points).
+- **Point clouds** (LAS / LAZ, through laspy): the scaled x, y, z and the CRS in the header
+  (a WKT or GeoTIFF-keys VLR). A classified cloud keeps its ground points (ASPRS class 2);
+  an unclassified one every point but the noise classes (7 low, 18 high); withheld points
+  are left out. Every point left out is counted by its reason in the note.
+
+A layer or cloud in feet (US lidar often is) is refused with the command that converts it:
+the map's distances, kernels and heights are metres.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from pyproj import CRS
+
+from terrain.errors import bad_input
+
+__all__ = [
+    "LAS_SUFFIXES",
+    "VECTOR_SUFFIXES",
+    "PointCloud",
+    "VectorPoints",
+    "point_classes_option",
+    "point_format",
+    "read_las",
+    "read_vector_points",
+]
+
+#: Suffixes read as GIS layers through GDAL (``.gpx`` is a GNSS log: toolkit.gnss_samples).
+VECTOR_SUFFIXES = (".gpkg", ".shp", ".geojson", ".fgb", ".kml", ".gml", ".sqlite", ".gdb")
+LAS_SUFFIXES = (".las", ".laz")
+#: ASPRS LAS 1.4 classes (R15, table 17) the reader acts on.
+GROUND, LOW_NOISE, HIGH_NOISE = 2, 7, 18
+
+_GEOMETRY_WORDS = {0: "point", 1: "line", 2: "line", 3: "polygon", 4: "point", 5: "line"}
+
+
+def point_format(path: str | Path) -> str | None:
+    """``"vector"``, ``"las"`` or None (a CSV, Parquet or GNSS log), by the file's suffix."""
+    suffix = Path(path).suffix.lower()
+    if suffix in LAS_SUFFIXES:
+        return "las"
+    return "vector" if suffix in VECTOR_SUFFIXES else None
+
+
+def point_classes_option(text: str | None) -> tuple[int, ...] | None:
+    """``--point-classes 2,9``: ASPRS class codes (0-255), or None for the default rule.
+
+    Raises
+    ------
+    InputError
+        A code that is not an integer in 0-255.
+    """
+    if text is None or not str(text).strip():
+        return None
+    try:
+        codes = tuple(sorted({int(c) for c in str(text).split(",") if c.strip()}))
+    except ValueError:
+        codes = (-1,)
+    if not codes or min(codes) < 0 or max(codes) > 255:
+        raise bad_input(
+            "--point-classes",
+            text,
+            "ASPRS class codes 0-255, comma-separated",
+            "e.g. --point-classes 2 (ground) or 2,9 (ground and water)",
+        )
+    return codes
+
+
+def _metres(crs: CRS, field: str, name: str) -> None:
+    """Refuse a horizontal CRS whose axes are not in metres, naming the conversion."""
+    horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
+    units = {a.unit_name for a in horizontal.axis_info}
+    if horizontal.is_projected and units and units != {"metre"}:
+        raise bad_input(
+            field,
+            f"{name} in {horizontal.name} ({', '.join(sorted(units))})",
+            "coordinates and heights in metres (the map's distances, kernels and heights are)",
+            "reproject to a CRS in metres, e.g. ogr2ogr -t_srs EPSG:326zz out.gpkg in.gpkg, or "
+            "pdal translate in.laz out.laz reprojection --filters.reprojection.out_srs=EPSG:326zz "
+            "(heights in feet also need scaling: pdal's filters.assign)",
+        )
+
+
+# --------------------------------------------------------------------------- GIS layers
+def _layer(path: Path, field: str) -> tuple[str | None, str]:
+    """The layer to read (the only one, or the first of several, said in the note)."""
+    import pyogrio
+
+    try:
+        layers = pyogrio.list_layers(path)
+    except Exception as exc:  # pyogrio's DataSourceError
+        raise bad_input(field, path.name, "a vector file GDAL reads", str(exc)) from exc
+    if len(layers) <= 1:
+        return None, ""
+    names = [str(n) for n in layers[:, 0]]
+    return names[0], f"{path.name} has {len(names)} layers ({', '.join(names)}): read {names[0]!r}"
+
+
+class VectorPoints:
+    """A GIS layer's vertices (:func:`read_vector_points`).
+
+    Attributes
+    ----------
+    xy : ndarray of shape (m, 2)
+        Each vertex's x, y in ``crs``.
+    z : ndarray of shape (m,) or None
+        The geometry's Z (None: 2-D, or a Z of 0 everywhere: a 2-D layer saved as 3-D).
+    fields : dict of str to ndarray of shape (m,)
+        Every attribute, each vertex its feature's.
+    crs : pyproj.CRS or None
+        The CRS the layer declares (None when it declares none, or a GeoJSON's RFC 7946
+        WGS 84 that its coordinates cannot be).
+    note : str
+        What was read, exploded, or left out.
+    """
+
+    def __init__(self, xy, z, fields, crs, note):  # noqa: ANN001 -- plain record
+        self.xy, self.z, self.fields, self.crs, self.note = xy, z, fields, crs, note
+
+
+def read_vector_points(path: str | Path, field: str) -> VectorPoints:
+    """A GIS layer's survey points: every vertex of its point, multipoint or line features.
+
+    Raises
+    ------
+    InputError
+        A file GDAL cannot read; polygons; no features; a CRS not in metres.
+    """
+    import pyogrio
+    import shapely
+
+    path = Path(path)
+    layer, note = _layer(path, field)
+    try:
+        meta, _, wkb, data = pyogrio.raw.read(path, layer=layer)
+    except Exception as exc:  # DataSourceError, ...
+        raise bad_input(field, path.name, "a vector file GDAL reads", str(exc)) from exc
+    geoms = shapely.from_wkb(wkb) if wkb is not None and len(wkb) else np.array([])
+    empty = np.array([g is None or g.is_empty for g in geoms], dtype=bool)
+    if not geoms.size or empty.all():
+        raise bad_input(field, path.name, "a layer with point or line features", "check it")
+    kinds = {_GEOMETRY_WORDS.get(int(t), "other") for t in shapely.get_type_id(geoms[~empty])}
+    if kinds - {"point", "line"}:
+        raise bad_input(
+            field,
+            f"{path.name} ({', '.join(sorted(kinds))} features)",
+            "points (spot heights, a GNSS survey) or lines (digitised contours)",
+            "save the survey points as a point layer (ogr2ogr -nlt POINT for vertices)",
+        )
+    notes = [note] if note else []
+    if empty.any():
+        notes.append(f"{int(empty.sum())} features without a geometry left out")
+    kept = geoms[~empty]
+    coords, owner = shapely.get_coordinates(kept, include_z=True, return_index=True)
+    feature = np.flatnonzero(~empty)[owner]
+    if "line" in kinds:
+        notes.append(f"{kept.size} features' {coords.shape[0]} vertices read as samples")
+    elif coords.shape[0] != kept.size:
+        notes.append(f"{kept.size} features exploded to {coords.shape[0]} points")
+    z = coords[:, 2] if np.isfinite(coords[:, 2]).any() and np.any(coords[:, 2] != 0) else None
+    fields = {
+        str(name): np.asarray(values)[feature]
+        for name, values in zip(meta["fields"], data, strict=True)
+    }
+    crs = CRS.from_user_input(meta["crs"]) if meta.get("crs") else None
+    if crs is not None and crs.is_geographic:
+        lonlat = (np.abs(coords[:, 0]) <= 180).all() and (np.abs(coords[:, 1]) <= 90).all()
+        if not lonlat:  # GeoJSON's RFC 7946 default, not the file's coordinates
+            crs = None
+            notes.append(f"{path.name} declares {meta['crs']} but its x, y are not degrees")
+    if crs is not None:
+        _metres(crs, field, path.name)
+    return VectorPoints(coords[:, :2], z, fields, crs, "; ".join(notes))
+
+
+# --------------------------------------------------------------------------- point clouds
+class PointCloud:
+    """A LAS / LAZ cloud's points kept for mapping (:func:`read_las`)."""
+
+    def __init__(self, xy: np.ndarray, z: np.ndarray, crs: CRS | None, note: str):
+        self.xy, self.z, self.crs, self.note = xy, z, crs, note
+
+
+def _class_names(codes: np.ndarray) -> str:
+    names = {1: "unclassified", 3: "low vegetation", 4: "medium vegetation", 5: "high "
+             "vegetation", 6: "building", 7: "low noise", 9: "water", 18: "high noise"}  # fmt: skip
+    values, counts = np.unique(codes, return_counts=True)
+    return ", ".join(
+        f"{c:,} class {v}" + (f" ({names[int(v)]})" if int(v) in names else "")
+        for v, c in zip(values, counts, strict=True)
+    )
+
+
+def read_las(path: str | Path, field: str, classes: tuple[int, ...] | None = None) -> PointCloud:
+    """The points of a LAS / LAZ file to map, in the header's CRS.
+
+    Parameters
+    ----------
+    path : path-like
+        A LAS 1.0-1.4 or LAZ file.
+    field : str
+        The option or argument named in errors (``"SAMPLES"``).
+    classes : tuple of int, optional
+        The ASPRS classes to keep; default: ground (2) when any point is classified ground,
+        else every point but the noise classes (7, 18).
+
+    Raises
+    ------
+    InputError
+        A file laspy cannot read; no point left; a CRS not in metres.
+    """
+    import laspy
+
+    path = Path(path)
+    try:
+        las = laspy.read(path)
+        crs = las.header.parse_crs()
+    except Exception as exc:  # laspy's LaspyException, lazrs' errors, pyproj's CRSError
+        raise bad_input(field, path.name, "a LAS / LAZ file laspy reads", str(exc)) from exc
+    code = np.asarray(las.classification, dtype=np.int64)
+    withheld = np.asarray(las.withheld, dtype=bool)
+    if classes is not None:
+        keep, rule = np.isin(code, classes), f"classes {', '.join(map(str, classes))} kept"
+    elif (code == GROUND).any():
+        keep, rule = code == GROUND, "ground points (class 2) kept"
+    else:
+        keep, rule = ~np.isin(code, (LOW_NOISE, HIGH_NOISE)), "not classified: all but noise kept"
+    keep &= ~withheld
+    notes = [f"{path.name}: {code.size:,} points, {rule}"]
+    out = ~keep & ~withheld
+    if out.any():
+        notes.append(f"left out {_class_names(code[out])}")
+    if withheld.any():
+        notes.append(f"left out {int(withheld.sum()):,} withheld points")
+    if not keep.any():
+        raise bad_input(
+            field,
+            f"{path.name} ({_class_names(code)})",
+            "some points of the classes kept",
+            "choose the classes with --point-classes (e.g. 1,2)",
+        )
+    if crs is not None:
+        _metres(crs, field, path.name)
+        if crs.is_compound:
+            notes.append(f"heights as stored ({crs.sub_crs_list[1].name})")
+            crs = crs.sub_crs_list[0]
+    xy = np.column_stack([np.asarray(las.x)[keep], np.asarray(las.y)[keep]])
+    return PointCloud(xy, np.asarray(las.z, dtype=float)[keep], crs, "; ".join(notes))
