@@ -6,6 +6,7 @@
 
 from .anisotropy import Anisotropy
 from .baselines import delaunay_linear
+from .block_samples import BlockReduction, block_reduce
 from .breakline import BreaklineMean
 from .breakline_search import BreaklineSearch, find_breaklines
 from .change import difference
@@ -51,6 +52,7 @@ from .volume import VolumeChange, volume_change
 __all__ = [
     "DEFAULT_CRS",
     "Anisotropy",
+    "BlockReduction",
     "CRSMismatchError",
     "DegenerateFitWarning",
     "ConstantMean",
@@ -89,6 +91,7 @@ __all__ = [
     "default_outline",
     "default_site",
     "delaunay_linear",
+    "block_reduce",
     "find_breaklines",
     "difference",
     "evaluate",

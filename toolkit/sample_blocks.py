@@ -3,7 +3,7 @@
 A lidar strip or a drone's photogrammetric cloud gives millions of points; the GP maps
 50,000 samples in seconds (``benchmarks/map_speed.py``). ``auto`` (the default) leaves a
 survey of up to :data:`AUTO_REDUCE_ABOVE` samples as it is and reduces a larger one to
-block means (:func:`terrain.block_reduce.block_reduce`) on the smallest block that leaves
+block means (:func:`terrain.block_samples.block_reduce`) on the smallest block that leaves
 at most :data:`AUTO_MAX_SAMPLES`; a size in metres reduces on that block; ``none`` keeps
 every point. Samples that carry the rover's along-track errors (``track_z_std_m``,
 ``shared_offset_std_m``, ``t_s``: what ``glacimap localize`` writes) are never averaged
@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from terrain import ElevationSamples
-from terrain.block_reduce import BlockReduction, auto_block_size, block_reduce
+from terrain.block_samples import BlockReduction, auto_block_size, block_reduce
 from terrain.errors import bad_input
 
 from .samples_io import SampleTable

@@ -4,7 +4,7 @@ its variance measured from the points' scatter or carried from their stated nois
 import numpy as np
 import pytest
 
-from terrain.block_reduce import MIN_QUADRATIC, auto_block_size, block_reduce
+from terrain.block_samples import MIN_QUADRATIC, auto_block_size, block_reduce
 from terrain.errors import InputError
 
 
