@@ -115,10 +115,28 @@ class BlockReduction:
         )
 
 
-def _keys(xy: np.ndarray, size: float, origin: np.ndarray) -> np.ndarray:
-    """One int64 key per point: its block's column-major index on the lattice."""
+#: Lattices of up to this many blocks are counted with ``bincount`` (no sort).
+DENSE_LATTICE = 50_000_000
+
+
+def _keys(xy: np.ndarray, size: float, origin: np.ndarray) -> tuple[np.ndarray, int]:
+    """One int64 key per point, its block's column-major index on the lattice, and the
+    lattice's number of blocks."""
     ij = np.floor((xy - origin) / size).astype(np.int64)
-    return ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
+    rows = int(ij[:, 1].max()) + 1
+    return ij[:, 0] * rows + ij[:, 1], (int(ij[:, 0].max()) + 1) * rows
+
+
+def _blocks(keys: np.ndarray, lattice: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's block (0..m-1, in key order) and each block's count: ``np.unique``'s
+    inverse and counts, by ``bincount`` on a lattice small enough (0.3 s on 10 million
+    points against 2.5 s)."""
+    if lattice > DENSE_LATTICE:
+        _, inv, count = np.unique(keys, return_inverse=True, return_counts=True)
+        return inv.reshape(-1), count
+    full = np.bincount(keys, minlength=lattice)
+    rank = np.cumsum(full > 0) - 1
+    return rank[keys], full[full > 0]
 
 
 def _check_points(xy: np.ndarray, z: np.ndarray, size: float) -> None:
@@ -174,8 +192,7 @@ def block_reduce(
     o = np.floor(xy.min(axis=0) / size) * size if origin is None else np.asarray(origin, float)
     if (xy < o).any():
         raise bad_input("origin", tuple(o), "a corner south-west of every point", "drop it")
-    _, inv, count = np.unique(_keys(xy, size, o), return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
+    inv, count = _blocks(*_keys(xy, size, o))
 
     def total(values: np.ndarray) -> np.ndarray:
         return np.bincount(inv, weights=values, minlength=count.size)
@@ -245,6 +262,6 @@ def auto_block_size(xy: np.ndarray, max_samples: int) -> float:
     ladder = sorted(s * 10.0**k for k in range(-2, 6) for s in NICE_SIZES)
     for size in (s for s in ladder if s >= bound / 4):
         o = np.floor(xy.min(axis=0) / size) * size
-        if np.unique(_keys(xy, size, o)).size <= max_samples:
+        if _blocks(*_keys(xy, size, o))[1].size <= max_samples:
             return float(size)
     return float(ladder[-1])
