@@ -22,6 +22,12 @@ the height of a local surface fitted to its points, at their centroid, with its 
   what is left is carried by the GP's fitted nugget.
 
 Nothing is dropped: every point is in exactly one block (``count`` sums to the points read).
+
+A cloud larger than memory is fed in chunks: :class:`BlockOccupancy` finds the block size
+that keeps at most so many samples, :class:`BlockAccumulator` keeps each block's sums
+(moments of the points' positions within the block to degree 4, of their heights about the
+block's first point to degree 2), so memory grows with the blocks, not the points.
+:func:`block_reduce` is the one-chunk case.
 """
 
 from __future__ import annotations
@@ -33,7 +39,13 @@ import numpy as np
 
 from .errors import bad_input
 
-__all__ = ["BlockReduction", "auto_block_size", "block_reduce"]
+__all__ = [
+    "BlockAccumulator",
+    "BlockOccupancy",
+    "BlockReduction",
+    "auto_block_size",
+    "block_reduce",
+]
 
 #: Blocks with at least this many points get a quadratic (6 coefficients, as many residuals).
 MIN_QUADRATIC = 12
@@ -115,28 +127,138 @@ class BlockReduction:
         )
 
 
-#: Lattices of up to this many blocks are counted with ``bincount`` (no sort).
-DENSE_LATTICE = 50_000_000
+#: Points summed at a time.
+CHUNK = 1_000_000
+
+#: Moments kept per block: u^a v^b for a + b <= 4 (u, v: the position in the block, 0..1).
+_EXPONENTS = [(a, d - a) for d in range(5) for a in range(d, -1, -1)]
+_INDEX = {e: k for k, e in enumerate(_EXPONENTS)}
+#: The quadratic's terms 1, u, v, u^2, uv, v^2.
+_QUAD = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
+_PAIRS = np.array([[_INDEX[(a + c, b + d)] for (c, d) in _QUAD] for (a, b) in _QUAD])
+_NM, _NQ = len(_EXPONENTS), len(_QUAD)
+# Columns of a block's sums: moments (15), dz x terms (6), dz^2, var x moments (15).
+_DZ, _DZZ, _VAR = _NM, _NM + _NQ, _NM + _NQ + 1
+_COLUMNS = _VAR + _NM
 
 
-def _keys(xy: np.ndarray, size: float, origin: np.ndarray) -> tuple[np.ndarray, int]:
-    """One int64 key per point, its block's column-major index on the lattice, and the
-    lattice's number of blocks."""
-    ij = np.floor((xy - origin) / size).astype(np.int64)
-    rows = int(ij[:, 1].max()) + 1
-    return ij[:, 0] * rows + ij[:, 1], (int(ij[:, 0].max()) + 1) * rows
+def _monomials(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """u^a v^b for every exponent of :data:`_EXPONENTS`, shape (n, 15)."""
+    pu = [np.ones_like(u), u, u * u, u * u * u, (u * u) * (u * u)]
+    pv = [np.ones_like(v), v, v * v, v * v * v, (v * v) * (v * v)]
+    return np.column_stack([pu[a] * pv[b] for a, b in _EXPONENTS])
 
 
-def _blocks(keys: np.ndarray, lattice: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's block (0..m-1, in key order) and each block's count: ``np.unique``'s
-    inverse and counts, by ``bincount`` on a lattice small enough (0.3 s on 10 million
-    points against 2.5 s)."""
-    if lattice > DENSE_LATTICE:
-        _, inv, count = np.unique(keys, return_inverse=True, return_counts=True)
-        return inv.reshape(-1), count
-    full = np.bincount(keys, minlength=lattice)
-    rank = np.cumsum(full > 0) - 1
-    return rank[keys], full[full > 0]
+class BlockAccumulator:
+    """Each block's sums of a cloud fed in chunks (:meth:`add`), reduced by :meth:`result`.
+
+    Parameters
+    ----------
+    size : float
+        Block edge, m.
+    origin : (x0, y0)
+        The lattice's south-west corner, m: south-west of every point to come.
+    """
+
+    def __init__(self, size: float, origin: tuple[float, float]):
+        if not (math.isfinite(size) and size > 0):
+            raise bad_input("block size", size, "a positive size in metres", "e.g. 2.0")
+        self.size, self.origin = float(size), (float(origin[0]), float(origin[1]))
+        self.keys = np.zeros(0, np.int64)  # sorted: i << 32 | j
+        self.sums = np.zeros((0, _COLUMNS))
+        self.ref = np.zeros(0)  # each block's first height: the heights' reference
+        self.stated = True  # every point so far stated its variance (> 0)
+
+    def add(self, xy: np.ndarray, z: np.ndarray, z_var: np.ndarray | None = None) -> None:
+        """Add points ``xy`` (n, 2) m, ``z`` (n,) m, optional ``z_var`` (n,) m^2."""
+        xy, z = np.asarray(xy, dtype=float), np.asarray(z, dtype=float)
+        _check_points(xy, z, self.size)
+        g = (xy - np.asarray(self.origin)) / self.size
+        ij = np.floor(g).astype(np.int64)
+        if (ij < 0).any() or (ij >= 2**31).any():
+            raise bad_input("origin", self.origin, "a corner south-west of every point", "")
+        key = (ij[:, 0] << 32) | ij[:, 1]
+        chunk, first, inv = np.unique(key, return_index=True, return_inverse=True)
+        inv = inv.reshape(-1)
+        merged = np.union1d(self.keys, chunk)
+        if merged.size > self.keys.size:  # new blocks: rows inserted in key order
+            old = np.searchsorted(merged, self.keys)
+            sums, ref = np.zeros((merged.size, _COLUMNS)), np.zeros(merged.size)
+            sums[old], ref[old] = self.sums, self.ref
+            new = ~np.isin(chunk, self.keys)
+            ref[np.searchsorted(merged, chunk[new])] = z[first[new]]
+            self.keys, self.sums, self.ref = merged, sums, ref
+        rows = np.searchsorted(self.keys, chunk)
+        uv = g - ij  # position within the block, 0..1
+        mono = _monomials(uv[:, 0], uv[:, 1])
+        dz = z - self.ref[rows][inv]
+        cols = [mono, mono[:, [_INDEX[e] for e in _QUAD]] * dz[:, None], (dz * dz)[:, None]]
+        stated = z_var is not None and bool(np.all(np.asarray(z_var) > 0))
+        self.stated &= stated
+        if stated:
+            cols.append(mono * np.asarray(z_var, dtype=float)[:, None])
+        values = np.column_stack(cols)
+        part = np.column_stack(
+            [
+                np.bincount(inv, weights=values[:, k], minlength=chunk.size)
+                for k in range(values.shape[1])
+            ]
+        )
+        self.sums[rows, : part.shape[1]] += part
+
+    @property
+    def n_points(self) -> int:
+        """Points added so far."""
+        return int(round(self.sums[:, 0].sum()))
+
+    def result(self) -> BlockReduction:
+        """Each block's quadratic (or mean) at its points' centroid, with its variance
+        (module docstring)."""
+        if not self.keys.size:
+            raise bad_input("points", 0, "at least one point", "pass the cloud's points")
+        s = self.sums
+        count = np.rint(s[:, 0]).astype(np.int64)
+        ubar, vbar = s[:, _INDEX[(1, 0)]] / count, s[:, _INDEX[(0, 1)]] / count
+        at = np.column_stack([np.ones_like(ubar), ubar, vbar, ubar**2, ubar * vbar, vbar**2])
+        normal = s[:, _PAIRS]  # (m, 6, 6): sum of a a^T
+        rhs, szz = s[:, _DZ : _DZ + _NQ], s[:, _DZZ]
+        quad = count >= MIN_QUADRATIC
+        if quad.any():  # well conditioned only: points spread over the block, not on one line
+            eig = np.linalg.eigvalsh(normal[quad])
+            quad[np.flatnonzero(quad)[eig[:, 0] <= 1e-8 * eig[:, -1]]] = False
+        fit = rhs[:, 0] / count  # the mean's offset from the block's reference
+        gain = 1.0 / count
+        rss, dof = szz - rhs[:, 0] ** 2 / count, count - 1.0
+        weight = None
+        if quad.any():
+            inverse = np.linalg.inv(normal[quad])
+            beta = np.einsum("bjk,bk->bj", inverse, rhs[quad])
+            weight = np.einsum("bjk,bk->bj", inverse, at[quad])  # M^-1 a(centroid)
+            fit[quad] = np.einsum("bj,bj->b", at[quad], beta)
+            gain[quad] = np.einsum("bj,bj->b", at[quad], weight)
+            rss[quad] = szz[quad] - np.einsum("bj,bj->b", beta, rhs[quad])
+            dof[quad] = count[quad] - 6.0
+        fitted = quad if quad.any() else count >= MIN_POOLED
+        scatter = None
+        if fitted.any() and dof[fitted].sum() > 0:
+            scatter = float(np.maximum(rss[fitted], 0.0).sum() / dof[fitted].sum())
+        if self.stated:  # sum w_i^2 var_i = w^T (sum var_i a_i a_i^T) w
+            var = s[:, _VAR] / count.astype(float) ** 2
+            if quad.any():
+                v_normal = s[quad][:, _VAR + _PAIRS]
+                var[quad] = np.einsum("bj,bjk,bk->b", weight, v_normal, weight)
+            source = "stated"
+        elif scatter is not None:
+            var, source = scatter * gain, "scatter"
+        else:
+            var, source = np.zeros(count.size), "none"
+        i, j = self.keys >> 32, self.keys & 0xFFFFFFFF
+        xy = np.column_stack(
+            [self.origin[0] + (i + ubar) * self.size, self.origin[1] + (j + vbar) * self.size]
+        )
+        return BlockReduction(
+            xy, self.ref + fit, var, count, self.size, self.origin, scatter, source
+        )
 
 
 def _check_points(xy: np.ndarray, z: np.ndarray, size: float) -> None:
@@ -183,85 +305,76 @@ def block_reduce(
     Raises
     ------
     InputError
-        Mismatched shapes, no points, non-finite values, a size that is not positive.
+        Mismatched shapes, no points, non-finite values, a size that is not positive, an
+        origin north-east of a point.
     """
     xy = np.asarray(xy, dtype=float)
     z = np.asarray(z, dtype=float)
-    size = float(size)
-    _check_points(xy, z, size)
-    o = np.floor(xy.min(axis=0) / size) * size if origin is None else np.asarray(origin, float)
-    if (xy < o).any():
-        raise bad_input("origin", tuple(o), "a corner south-west of every point", "drop it")
-    inv, count = _blocks(*_keys(xy, size, o))
+    _check_points(xy, z, float(size))
+    if origin is None:
+        origin = tuple(np.floor(xy.min(axis=0) / float(size)) * float(size))
+    acc = BlockAccumulator(float(size), origin)
+    for start in range(0, z.size, CHUNK):  # each chunk's sums: ~300 bytes a point
+        part = slice(start, start + CHUNK)
+        acc.add(xy[part], z[part], None if z_var is None else np.asarray(z_var)[part])
+    return acc.result()
 
-    def total(values: np.ndarray) -> np.ndarray:
-        return np.bincount(inv, weights=values, minlength=count.size)
 
-    cx, cy, mz = total(xy[:, 0]) / count, total(xy[:, 1]) / count, total(z) / count
-    u, v = (xy[:, 0] - cx[inv]) / size, (xy[:, 1] - cy[inv]) / size  # in block edges
-    dz = z - mz[inv]
-    design = np.column_stack([np.ones_like(u), u, v, u * u, u * v, v * v])  # (n, 6)
-    # Each block's normal equations M b = r, M = sum a a^T, r = sum a dz: 21 + 6 sums.
-    normal = np.empty((count.size, 6, 6))
-    for j in range(6):
-        for k in range(j, 6):
-            normal[:, j, k] = normal[:, k, j] = total(design[:, j] * design[:, k])
-    rhs = np.column_stack([total(design[:, j] * dz) for j in range(6)])
-    quad = count >= MIN_QUADRATIC
-    if quad.any():  # well conditioned only: points spread over the block, not on one line
-        eig = np.linalg.eigvalsh(normal[quad])
-        quad[np.flatnonzero(quad)[eig[:, 0] <= 1e-8 * eig[:, -1]]] = False
-    height, gain = mz.copy(), 1.0 / count  # the mean: its variance is noise / n
-    rss, dof = total(dz * dz), count - 1.0
-    if quad.any():
-        inv_normal = np.linalg.inv(normal[quad])
-        beta = np.einsum("bjk,bk->bj", inv_normal, rhs[quad])
-        height[quad] += beta[:, 0]  # the fitted surface at the centroid
-        gain[quad] = inv_normal[:, 0, 0]  # var(intercept) = noise * (M^-1)_00
-        rss[quad] -= np.einsum("bj,bj->b", beta, rhs[quad])
-        dof[quad] = count[quad] - 6.0
-    fitted = quad if quad.any() else count >= MIN_POOLED
-    scatter = None
-    if fitted.any() and dof[fitted].sum() > 0:
-        scatter = float(np.maximum(rss[fitted], 0.0).sum() / dof[fitted].sum())
-    stated = z_var is not None and bool(np.all(np.asarray(z_var) > 0))  # every point states it
-    if stated:  # var = sum w_i^2 var_i, w_i the point's weight in its block's intercept
-        z_var = np.asarray(z_var, dtype=float)
-        var = total(z_var) / count.astype(float) ** 2
-        if quad.any():
-            row = np.zeros((count.size, 6))
-            row[quad] = inv_normal[:, 0, :]
-            w = np.einsum("ij,ij->i", design, row[inv])
-            var[quad] = total(w * w * z_var)[quad]
-        source = "stated"
-    elif scatter is not None:
-        var, source = scatter * gain, "scatter"
-    else:
-        var, source = np.zeros(count.size), "none"
-    return BlockReduction(
-        np.column_stack([cx, cy]),
-        height,
-        var,
-        count,
-        size,
-        (float(o[0]), float(o[1])),
-        scatter,
-        source,
-    )
+class BlockOccupancy:
+    """How many blocks of each candidate size a cloud fills, fed in chunks (:meth:`add`);
+    :meth:`size` the smallest that keeps at most ``max_samples``.
+
+    The candidates are :data:`NICE_SIZES` x 10^k m from a quarter of the size at which the
+    cloud's bounding box itself holds ``max_samples`` blocks (a strip fills far fewer than
+    its box) up to that size (which always does); each is counted on a bit map of the box.
+
+    Parameters
+    ----------
+    bounds : (west, south, east, north)
+        The cloud's bounding box, m.
+    max_samples : int
+        The most blocks wanted.
+    """
+
+    def __init__(self, bounds: tuple[float, float, float, float], max_samples: int):
+        if max_samples < 1:
+            raise bad_input("max_samples", max_samples, "at least 1", "pass a positive count")
+        w, s, e, n = map(float, bounds)
+        width, height = max(e - w, 0.0), max(n - s, 0.0)
+        bound = math.sqrt(max(width * height, width, height, 1e-6) / max_samples)
+        ladder = sorted(x * 10.0**k for k in range(-2, 6) for x in NICE_SIZES)
+        top = next(x for x in ladder if x >= bound)
+        self.sizes = [x for x in ladder if bound / 4 <= x <= top] or [top]
+        self.max_samples = max_samples
+        self._origin = [np.floor(np.array([w, s]) / x) * x for x in self.sizes]
+        self._shape = [
+            (int((e - o[0]) // x) + 1, int((n - o[1]) // x) + 1)
+            for x, o in zip(self.sizes, self._origin, strict=True)
+        ]
+        self._seen = [np.zeros(nx * ny, dtype=bool) for nx, ny in self._shape]
+
+    def add(self, xy: np.ndarray) -> None:
+        """Mark the blocks points ``xy`` (n, 2) m fall in, at every candidate size."""
+        xy = np.asarray(xy, dtype=float)
+        for x, o, (nx, ny), seen in zip(
+            self.sizes, self._origin, self._shape, self._seen, strict=True
+        ):
+            ij = np.clip(np.floor((xy - o) / x).astype(np.int64), 0, [nx - 1, ny - 1])
+            seen[ij[:, 0] * ny + ij[:, 1]] = True
+
+    def size(self) -> float:
+        """The smallest candidate whose filled blocks number at most ``max_samples``."""
+        for x, seen in zip(self.sizes, self._seen, strict=True):
+            if int(seen.sum()) <= self.max_samples:
+                return float(x)
+        return float(self.sizes[-1])
 
 
 def auto_block_size(xy: np.ndarray, max_samples: int) -> float:
     """The smallest of :data:`NICE_SIZES` x 10^k (m) whose occupied blocks number at most
-    ``max_samples``. Starts a quarter below the size at which the points' bounding box
-    itself holds ``max_samples`` blocks (a strip occupies far fewer than its box)."""
+    ``max_samples`` (:class:`BlockOccupancy` in one chunk)."""
     xy = np.asarray(xy, dtype=float)
-    if max_samples < 1:
-        raise bad_input("max_samples", max_samples, "at least 1", "pass a positive count")
-    w, h = np.ptp(xy, axis=0)
-    bound = math.sqrt(max(w * h, w, h, 1e-6) / max_samples)  # the box holds max_samples
-    ladder = sorted(s * 10.0**k for k in range(-2, 6) for s in NICE_SIZES)
-    for size in (s for s in ladder if s >= bound / 4):
-        o = np.floor(xy.min(axis=0) / size) * size
-        if _blocks(*_keys(xy, size, o))[1].size <= max_samples:
-            return float(size)
-    return float(ladder[-1])
+    (w, s), (e, n) = xy.min(axis=0), xy.max(axis=0)
+    occupancy = BlockOccupancy((w, s, e, n), max_samples)
+    occupancy.add(xy)
+    return occupancy.size()

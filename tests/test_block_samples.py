@@ -118,3 +118,20 @@ def test_auto_size_keeps_at_most_the_samples_asked_for():
 def test_bad_points_are_refused_by_name(xy, z, size):
     with pytest.raises(InputError, match="points|block size"):
         block_reduce(xy, z, size)
+
+
+def test_chunks_give_the_blocks_one_pass_gives(monkeypatch):
+    # The accumulator's sums are the same whether the points come in one chunk or in many
+    # (a cloud larger than memory), up to the order of summation.
+    import terrain.block_samples as blocks
+
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(0, 100, (30_000, 2))
+    z = _surface(xy) + rng.normal(0, 0.1, 30_000)
+    whole = block_reduce(xy, z, 5.0)
+    monkeypatch.setattr(blocks, "CHUNK", 997)
+    parts = block_reduce(xy, z, 5.0)
+    assert parts.n == whole.n and np.array_equal(parts.count, whole.count)
+    np.testing.assert_allclose(parts.xy, whole.xy, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(parts.z, whole.z, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(parts.z_var, whole.z_var, rtol=1e-9)

@@ -237,3 +237,32 @@ def test_cli_maps_a_laz_cloud_and_writes_its_block_samples(tmp_path):
     )
     assert isinstance(bad.exception, InputError) and "--block-size" in str(bad.exception)
     assert not (tmp_path / "b").exists()  # refused before anything is read or written
+
+
+def test_tiles_of_one_survey_are_reduced_together(tmp_path):
+    # Two tiles (split at x = X0 + 150 m, inside blocks) reduce as the one cloud they are;
+    # a tile in another CRS is refused; a cloud in degrees is projected to its UTM zone.
+    xy = _points(120_000, seed=8)
+    rng = np.random.default_rng(8)
+    z = _surface(*xy.T) + rng.normal(0, 0.05, len(xy))
+    west = xy[:, 0] < X0 + 150.0
+    one = read_sample_files([_las(tmp_path / "all.laz", xy, z)], block_size=6.0)
+    a = _las(tmp_path / "west.laz", xy[west], z[west])
+    b = _las(tmp_path / "east.laz", xy[~west], z[~west])
+    two = read_sample_files([a, b], block_size=6.0)
+    assert two.samples.n == one.samples.n
+    np.testing.assert_allclose(two.samples.z, one.samples.z, atol=1e-9)
+    assert "west.laz, east.laz: 120,000 points" in two.note
+    other = _las(tmp_path / "other.laz", xy[:10], z[:10], crs="EPSG:32632")
+    with pytest.raises(InputError, match="one CRS"):
+        read_sample_files([a, other], block_size=6.0)
+    lon, lat = Transformer.from_crs(UTM, "EPSG:4326", always_xy=True).transform(*xy[:2000].T)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets, header.scales = [15.0, 63.0, 0.0], [1e-8, 1e-8, 0.001]
+    header.add_crs(CRS.from_epsg(4326))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = lon, lat, z[:2000]
+    las.write(tmp_path / "degrees.laz")
+    deg = read_sample_files([tmp_path / "degrees.laz"], block_size=None)
+    assert deg.samples.crs.equals(CRS(UTM)) and "projected to EPSG:32633" in deg.note
+    np.testing.assert_allclose(np.sort(deg.samples.xy[:, 0]), np.sort(xy[:2000, 0]), atol=1e-3)

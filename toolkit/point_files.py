@@ -7,10 +7,8 @@
   COLUMN_ALIASES`), a 1-sigma attribute likewise (``z_std``, ``sigma``...); the position is
   the geometry's, in the CRS the layer declares. Polygons are refused (their vertices are
   not survey points).
-- **Point clouds** (LAS / LAZ, through laspy): the scaled x, y, z and the CRS in the header
-  (a WKT or GeoTIFF-keys VLR). A classified cloud keeps its ground points (ASPRS class 2);
-  an unclassified one every point but the noise classes (7 low, 18 high); withheld points
-  are left out. Every point left out is counted by its reason in the note.
+- **Point clouds** (LAS / LAZ) are recognised here (:func:`point_format`) and read in chunks
+  by :mod:`toolkit.point_clouds`.
 
 A layer or cloud in feet (US lidar often is) is refused with the command that converts it:
 the map's distances, kernels and heights are metres.
@@ -28,19 +26,16 @@ from terrain.errors import bad_input
 __all__ = [
     "LAS_SUFFIXES",
     "VECTOR_SUFFIXES",
-    "PointCloud",
     "VectorPoints",
+    "check_metres",
     "point_classes_option",
     "point_format",
-    "read_las",
     "read_vector_points",
 ]
 
 #: Suffixes read as GIS layers through GDAL (``.gpx`` is a GNSS log: toolkit.gnss_samples).
 VECTOR_SUFFIXES = (".gpkg", ".shp", ".geojson", ".fgb", ".kml", ".gml", ".sqlite", ".gdb")
 LAS_SUFFIXES = (".las", ".laz")
-#: ASPRS LAS 1.4 classes (R15, table 17) the reader acts on.
-GROUND, LOW_NOISE, HIGH_NOISE = 2, 7, 18
 
 _GEOMETRY_WORDS = {0: "point", 1: "line", 2: "line", 3: "polygon", 4: "point", 5: "line"}
 
@@ -77,8 +72,9 @@ def point_classes_option(text: str | None) -> tuple[int, ...] | None:
     return codes
 
 
-def _metres(crs: CRS, field: str, name: str) -> None:
-    """Refuse a horizontal CRS whose axes are not in metres, naming the conversion."""
+def check_metres(crs: CRS, field: str, name: str) -> None:
+    """Refuse a horizontal CRS whose axes are not in metres, naming the conversion (for
+    layers here and clouds, :mod:`toolkit.point_clouds`)."""
     horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
     units = {a.unit_name for a in horizontal.axis_info}
     if horizontal.is_projected and units and units != {"metre"}:
@@ -180,80 +176,5 @@ def read_vector_points(path: str | Path, field: str) -> VectorPoints:
             crs = None
             notes.append(f"{path.name} declares {meta['crs']} but its x, y are not degrees")
     if crs is not None:
-        _metres(crs, field, path.name)
+        check_metres(crs, field, path.name)
     return VectorPoints(coords[:, :2], z, fields, crs, "; ".join(notes))
-
-
-# --------------------------------------------------------------------------- point clouds
-class PointCloud:
-    """A LAS / LAZ cloud's points kept for mapping (:func:`read_las`)."""
-
-    def __init__(self, xy: np.ndarray, z: np.ndarray, crs: CRS | None, note: str):
-        self.xy, self.z, self.crs, self.note = xy, z, crs, note
-
-
-def _class_names(codes: np.ndarray) -> str:
-    names = {1: "unclassified", 3: "low vegetation", 4: "medium vegetation", 5: "high "
-             "vegetation", 6: "building", 7: "low noise", 9: "water", 18: "high noise"}  # fmt: skip
-    values, counts = np.unique(codes, return_counts=True)
-    return ", ".join(
-        f"{c:,} class {v}" + (f" ({names[int(v)]})" if int(v) in names else "")
-        for v, c in zip(values, counts, strict=True)
-    )
-
-
-def read_las(path: str | Path, field: str, classes: tuple[int, ...] | None = None) -> PointCloud:
-    """The points of a LAS / LAZ file to map, in the header's CRS.
-
-    Parameters
-    ----------
-    path : path-like
-        A LAS 1.0-1.4 or LAZ file.
-    field : str
-        The option or argument named in errors (``"SAMPLES"``).
-    classes : tuple of int, optional
-        The ASPRS classes to keep; default: ground (2) when any point is classified ground,
-        else every point but the noise classes (7, 18).
-
-    Raises
-    ------
-    InputError
-        A file laspy cannot read; no point left; a CRS not in metres.
-    """
-    import laspy
-
-    path = Path(path)
-    try:
-        las = laspy.read(path)
-        crs = las.header.parse_crs()
-    except Exception as exc:  # laspy's LaspyException, lazrs' errors, pyproj's CRSError
-        raise bad_input(field, path.name, "a LAS / LAZ file laspy reads", str(exc)) from exc
-    code = np.asarray(las.classification, dtype=np.int64)
-    withheld = np.asarray(las.withheld, dtype=bool)
-    if classes is not None:
-        keep, rule = np.isin(code, classes), f"classes {', '.join(map(str, classes))} kept"
-    elif (code == GROUND).any():
-        keep, rule = code == GROUND, "ground points (class 2) kept"
-    else:
-        keep, rule = ~np.isin(code, (LOW_NOISE, HIGH_NOISE)), "not classified: all but noise kept"
-    keep &= ~withheld
-    notes = [f"{path.name}: {code.size:,} points, {rule}"]
-    out = ~keep & ~withheld
-    if out.any():
-        notes.append(f"left out {_class_names(code[out])}")
-    if withheld.any():
-        notes.append(f"left out {int(withheld.sum()):,} withheld points")
-    if not keep.any():
-        raise bad_input(
-            field,
-            f"{path.name} ({_class_names(code)})",
-            "some points of the classes kept",
-            "choose the classes with --point-classes (e.g. 1,2)",
-        )
-    if crs is not None:
-        _metres(crs, field, path.name)
-        if crs.is_compound:
-            notes.append(f"heights as stored ({crs.sub_crs_list[1].name})")
-            crs = crs.sub_crs_list[0]
-    xy = np.column_stack([np.asarray(las.x)[keep], np.asarray(las.y)[keep]])
-    return PointCloud(xy, np.asarray(las.z, dtype=float)[keep], crs, "; ".join(notes))

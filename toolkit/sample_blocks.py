@@ -22,7 +22,13 @@ from terrain.errors import bad_input
 
 from .samples_io import SampleTable
 
-__all__ = ["AUTO_MAX_SAMPLES", "AUTO_REDUCE_ABOVE", "block_size_option", "reduce_table"]
+__all__ = [
+    "AUTO_MAX_SAMPLES",
+    "AUTO_REDUCE_ABOVE",
+    "block_size_option",
+    "reduce_table",
+    "reduction_note",
+]
 
 #: ``auto`` reduces a survey of more samples than this.
 AUTO_REDUCE_ABOVE = 100_000
@@ -64,6 +70,16 @@ def _along_track(table: SampleTable) -> bool:
     )
 
 
+def reduction_note(red: BlockReduction, auto: bool) -> str:
+    """How many points became how many samples, and why this block size when ``auto``."""
+    if not auto:
+        return red.note()
+    return red.note() + (
+        f" (auto: a survey of more than {AUTO_REDUCE_ABOVE:,} samples is reduced to at most "
+        f"{AUTO_MAX_SAMPLES:,}; --block-size M to choose the block, none to keep every point)"
+    )
+
+
 def reduce_table(
     table: SampleTable, block_size: float | str | None
 ) -> tuple[SampleTable, BlockReduction | None]:
@@ -98,11 +114,6 @@ def reduce_table(
     chosen = auto_block_size(s.xy, AUTO_MAX_SAMPLES) if size == "auto" else float(size)
     red = block_reduce(s.xy, s.z, chosen, z_var=s.z_var)
     samples = ElevationSamples(red.xy, red.z, red.z_var, crs=s.crs)
-    note = red.note()
-    if size == "auto":
-        note += (
-            f" (auto: a survey of more than {AUTO_REDUCE_ABOVE:,} samples is reduced to at most "
-            f"{AUTO_MAX_SAMPLES:,}; --block-size M to choose the block, none to keep every point)"
-        )
+    note = reduction_note(red, size == "auto")
     note = f"{table.note}; {note}" if table.note else note
     return SampleTable(samples, np.zeros(samples.n), 0.0, note), red

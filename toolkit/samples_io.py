@@ -136,8 +136,10 @@ def read_samples(
             "a GNSS log (NMEA, GPX, RTKLIB .pos) as SAMPLES: a CSV's z is read as given",
             f"convert {path.name}'s heights to the survey's datum, or drop --gnss-heights",
         )
-    if kind == "las":
-        return _cloud_samples(path, crs, point_classes)
+    if kind == "las":  # every kept point (read_sample_files reduces clouds in chunks)
+        from .point_clouds import cloud_table
+
+        return cloud_table([path], crs, point_classes, block_size=None)[0]
     if kind == "vector":  # the layer's attributes are the columns
         from .certify_io import read_layer_table
 
@@ -248,34 +250,6 @@ def _projected(xy: np.ndarray, crs: CRS) -> tuple[np.ndarray, CRS, str]:
     )
 
 
-def _cloud_samples(path: Path, crs: Any, classes: tuple[int, ...] | None) -> SampleTable:
-    """A LAS / LAZ cloud's kept points as samples in its header's CRS (or ``crs``, which
-    must agree), projected when in degrees; points at one x, y averaged (counted)."""
-    from terrain.grid import check_same_crs
-
-    from .certify_io import any_crs
-    from .point_files import read_las
-
-    cloud = read_las(path, "SAMPLES", classes)
-    given = None if crs is None else any_crs(crs, "--crs")
-    if cloud.crs is not None:
-        check_same_crs(given, cloud.crs, "--crs", f"{path.name} (LAS header)")
-    use = cloud.crs if cloud.crs is not None else given
-    if use is None:
-        raise bad_input(
-            "--crs",
-            None,
-            f"the CRS of {path.name}'s points (its header names none)",
-            "pass --crs EPSG:326zz (the cloud's CRS); glacimap never guesses it",
-        )
-    xy, map_crs, moved = _projected(cloud.xy, use)
-    samples = ElevationSamples(xy, cloud.z, 0.0, crs=map_crs.to_string(), duplicates="average")
-    notes = [cloud.note, moved, "a cloud states no per-point noise"]
-    if samples.n_merged:
-        notes.append(f"{samples.n_merged:,} points at the x, y of another averaged")
-    return SampleTable(samples, np.zeros(samples.n), 0.0, "; ".join(n for n in notes if n))
-
-
 def _noise(table: Any, extra_cols: dict[str, np.ndarray], names: dict[str, str]):
     """The samples' noise variance (m^2) and a note saying where it came from: ``z_var``
     (m^2), else a 1-sigma column (m; the checkpoint aliases: sigma, z_std, elevation_std...)
@@ -343,8 +317,25 @@ def read_sample_files(
     from .sample_blocks import reduce_table
 
     paths = [Path(p) for p in paths]
-    table = _joined(paths, crs, antenna_height_m, gnss_heights, point_classes)
-    table, reduced = reduce_table(table, block_size)
+    clouds = [p for p in paths if point_format(p) == "las"]
+    reduced = None
+    if clouds:  # one survey's clouds read together, a chunk at a time (point_clouds.py)
+        from .point_clouds import cloud_table
+
+        cloud, reduced = cloud_table(clouds, crs, point_classes, block_size)
+        others = [p for p in paths if p not in clouds]
+        table = _joined([clouds[0], *others], crs, antenna_height_m, gnss_heights, cloud)
+    else:
+        if point_classes is not None:
+            raise bad_input(
+                "--point-classes",
+                ",".join(map(str, point_classes)),
+                "a LAS / LAZ point cloud as SAMPLES (classes are a cloud's)",
+                "drop --point-classes",
+            )
+        table = _joined(paths, crs, antenna_height_m, gnss_heights)
+    if reduced is None:
+        table, reduced = reduce_table(table, block_size)
     table.derived = reduced is not None or any(gnss_format(p) or point_format(p) for p in paths)
     return table
 
@@ -354,15 +345,16 @@ def _joined(
     crs: Any,
     antenna_height_m: float | None,
     gnss_heights: str | None,
-    classes: tuple[int, ...] | None,
+    first: SampleTable | None = None,
 ) -> SampleTable:
-    first = read_samples(paths[0], crs, antenna_height_m, gnss_heights, classes)
+    """The files' samples as one table in the first's CRS; ``first``: the first file's
+    table, already read (the clouds')."""
+    if first is None:
+        first = read_samples(paths[0], crs, antenna_height_m, gnss_heights)
     if len(paths) == 1:
         return first
     into = first.samples.crs.to_string()
-    tables = [first] + [
-        read_samples(p, into, antenna_height_m, gnss_heights, classes) for p in paths[1:]
-    ]
+    tables = [first] + [read_samples(p, into, antenna_height_m, gnss_heights) for p in paths[1:]]
     for t in tables[1:]:  # a later file was read into the first one's CRS, not one given
         t.note = (t.note or "").replace("(the CRS given)", f"(the CRS of {paths[0].name})")
     for p, t in zip(paths[1:], tables[1:], strict=True):
