@@ -395,8 +395,9 @@ def _along_track_term(gp: Any, g: dict[str, Any], model: AlongTrackModel | None)
     if "t_s" not in extra:
         return {
             "status": "not available: the samples carry no observation time (t_s): spot "
-            "heights with independent errors need none; a rover's samples.csv written by "
-            "glacimap localize / process carries it (re-export one without a t_s column)"
+            "heights, GIS layers and point clouds, whose errors are independent, need none; "
+            "a rover's samples.csv written by glacimap localize / process carries it (a "
+            "rover's samples without it: re-export them with glacimap)"
         }
     idx = g["sample_index"]
     t = np.asarray(extra["t_s"], float)[idx]
