@@ -24,6 +24,7 @@ from pyproj import CRS
 from terrain.errors import bad_input
 
 __all__ = [
+    "HDF5_SUFFIXES",
     "LAS_SUFFIXES",
     "VECTOR_SUFFIXES",
     "VectorPoints",
@@ -36,15 +37,20 @@ __all__ = [
 #: Suffixes read as GIS layers through GDAL (``.gpx`` is a GNSS log: toolkit.gnss_samples).
 VECTOR_SUFFIXES = (".gpkg", ".shp", ".geojson", ".fgb", ".kml", ".gml", ".sqlite", ".gdb")
 LAS_SUFFIXES = (".las", ".laz")
+#: HDF5: an ICESat-2 ATL06 granule (toolkit.icesat2).
+HDF5_SUFFIXES = (".h5", ".hdf5", ".he5")
 
 _GEOMETRY_WORDS = {0: "point", 1: "line", 2: "line", 3: "polygon", 4: "point", 5: "line"}
 
 
 def point_format(path: str | Path) -> str | None:
-    """``"vector"``, ``"las"`` or None (a CSV, Parquet or GNSS log), by the file's suffix."""
+    """``"vector"``, ``"las"``, ``"atl06"`` or None (a CSV, Parquet or GNSS log), by the
+    file's suffix."""
     suffix = Path(path).suffix.lower()
     if suffix in LAS_SUFFIXES:
         return "las"
+    if suffix in HDF5_SUFFIXES:
+        return "atl06"
     return "vector" if suffix in VECTOR_SUFFIXES else None
 
 

@@ -136,6 +136,10 @@ def read_samples(
             "a GNSS log (NMEA, GPX, RTKLIB .pos) as SAMPLES: a CSV's z is read as given",
             f"convert {path.name}'s heights to the survey's datum, or drop --gnss-heights",
         )
+    if kind == "atl06":  # ICESat-2 land-ice heights: --crs is the map's, as for GNSS logs
+        from .icesat2 import read_atl06
+
+        return read_atl06(path, crs)
     if kind == "las":  # every kept point (read_sample_files reduces clouds in chunks)
         from .point_clouds import cloud_table
 
@@ -395,7 +399,8 @@ def _joined(
 def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str, str]:
     """The product attributes that say what a map made from ``paths`` is in height.
 
-    GNSS logs are carried to the WGS 84 ellipsoid (:mod:`toolkit.gnss_samples`): the
+    GNSS logs are carried to the WGS 84 ellipsoid (:mod:`toolkit.gnss_samples`), ICESat-2
+    heights are above it (:mod:`toolkit.icesat2`): the
     product's default ``vertical_datum`` says so, and ``given`` may only confirm it. A CSV's
     ``z`` is taken as given, so the map is in the CSV's datum: ``given``
     (``--samples-heights``: ``"ellipsoidal"``, ``"egm96"``, ``"egm2008"``) names it
@@ -413,12 +418,14 @@ def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str
 
     field = "--samples-heights"
     given = None if given is None else height_datum_option(given, field)
-    logs = [gnss_format(p) is not None for p in paths]
+    from .point_files import point_format
+
+    logs = [gnss_format(p) is not None or point_format(p) == "atl06" for p in paths]
     if any(logs) and given not in (None, "ellipsoidal"):
         raise bad_input(
             field,
             given,
-            "ellipsoidal: GNSS logs are carried to the WGS 84 ellipsoid",
+            "ellipsoidal: GNSS logs and ICESat-2 heights are on the WGS 84 ellipsoid",
             "say what a log's heights are with --gnss-heights; convert a CSV's z to "
             "ellipsoidal heights to map it with logs",
         )
