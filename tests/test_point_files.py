@@ -266,3 +266,26 @@ def test_tiles_of_one_survey_are_reduced_together(tmp_path):
     deg = read_sample_files([tmp_path / "degrees.laz"], block_size=None)
     assert deg.samples.crs.equals(CRS(UTM)) and "projected to EPSG:32633" in deg.note
     np.testing.assert_allclose(np.sort(deg.samples.xy[:, 0]), np.sort(xy[:2000, 0]), atol=1e-3)
+
+
+def test_a_clouds_compound_crs_states_its_heights(tmp_path):
+    # EGM96 heights (EPSG:5773) become the map's stated datum; NAVD88 (5703) is named, not
+    # converted; heights in feet (NAVD88 ftUS, 6360) are refused; an option contradicting
+    # the file is refused.
+    from toolkit.samples_io import samples_height_attrs
+
+    xy = _points(300, seed=9)
+    z = _surface(*xy.T)
+    egm = _las(tmp_path / "egm.laz", xy, z, crs=f"{UTM}+5773")
+    assert samples_height_attrs([egm], None)["height_datum"] == "egm96"
+    assert samples_height_attrs([egm], "egm96")["height_datum"] == "egm96"
+    with pytest.raises(InputError, match="--samples-heights"):
+        samples_height_attrs([egm], "ellipsoidal")
+    table = read_sample_files([egm])
+    assert table.samples.crs.equals(CRS(UTM))  # the map's CRS is the horizontal part
+    navd = _las(tmp_path / "navd.laz", xy, z, crs="EPSG:32618+5703")
+    attrs = samples_height_attrs([navd], None)
+    assert "height_datum" not in attrs and "NAVD88" in attrs["vertical_datum"]
+    feet = _las(tmp_path / "feet.laz", xy, z, crs="EPSG:32618+6360")
+    with pytest.raises(InputError, match="US survey foot"):
+        read_sample_files([feet])

@@ -39,7 +39,7 @@ from terrain.grid import check_same_crs, utm_crs
 from .point_files import check_metres
 from .samples_io import SampleTable
 
-__all__ = ["CHUNK_POINTS", "CloudScan", "cloud_table", "scan_clouds"]
+__all__ = ["CHUNK_POINTS", "CloudScan", "cloud_table", "scan_clouds", "stated_heights"]
 
 #: Points read at a time (~40 bytes each in a chunk, ~300 while its sums are formed).
 CHUNK_POINTS = 1_000_000
@@ -130,6 +130,30 @@ def _header_crs(paths: list[Path], field_name: str) -> CRS | None:
                 "reproject one (pdal translate ... reprojection) or map them apart",
             )
     return crss[0] if crss else None
+
+
+def stated_heights(paths: list[str | Path]) -> tuple[str | None, str]:
+    """The height datum the clouds' header CRS states: ``(datum, "")`` for the ellipsoid or
+    a geoid glacimap converts (:func:`terrain.vertical_datum.split_vertical`), ``(None,
+    words)`` for another vertical datum (named, not converted: ``change`` and ``certify``
+    take it as not stated), ``(None, "")`` when no header says."""
+    from terrain.errors import InputError
+    from terrain.vertical_datum import split_vertical
+
+    for path in map(Path, paths):
+        with _open(path, "SAMPLES") as reader:
+            crs = reader.header.parse_crs()
+        if crs is None or not crs.is_compound:
+            continue
+        try:
+            return split_vertical(crs)[1], ""
+        except InputError:
+            vertical = crs.sub_crs_list[-1]
+            return None, (
+                f"{vertical.name} heights, as {path.name}'s CRS states ({vertical.to_string()}); "
+                "glacimap does not convert this datum: change / certify take it as not stated"
+            )
+    return None, ""
 
 
 def scan_clouds(

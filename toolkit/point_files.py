@@ -82,8 +82,10 @@ def check_metres(crs: CRS, field: str, name: str) -> None:
     """Refuse a horizontal CRS whose axes are not in metres, naming the conversion (for
     layers here and clouds, :mod:`toolkit.point_clouds`)."""
     horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
-    units = {a.unit_name for a in horizontal.axis_info}
-    if horizontal.is_projected and units and units != {"metre"}:
+    units = {a.unit_name for a in horizontal.axis_info} if horizontal.is_projected else set()
+    if crs.is_compound:  # heights in feet too (NAVD88 ftUS)
+        units |= {a.unit_name for a in crs.sub_crs_list[-1].axis_info}
+    if units and units != {"metre"}:
         raise bad_input(
             field,
             f"{name} in {horizontal.name} ({', '.join(sorted(units))})",
@@ -183,4 +185,7 @@ def read_vector_points(path: str | Path, field: str) -> VectorPoints:
             notes.append(f"{path.name} declares {meta['crs']} but its x, y are not degrees")
     if crs is not None:
         check_metres(crs, field, path.name)
+        if crs.is_compound:  # the position's CRS; the heights' datum is named
+            notes.append(f"heights as stored ({crs.sub_crs_list[-1].name})")
+            crs = crs.sub_crs_list[0]
     return VectorPoints(coords[:, :2], z, fields, crs, "; ".join(notes))

@@ -405,7 +405,9 @@ def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str
     ``z`` is taken as given, so the map is in the CSV's datum: ``given``
     (``--samples-heights``: ``"ellipsoidal"``, ``"egm96"``, ``"egm2008"``) names it
     (``height_datum``), else the product says it is not stated -- never the GPS ellipsoid by
-    default (``glacimap change`` / ``certify`` would carry it as such).
+    default (``glacimap change`` / ``certify`` would carry it as such). A point cloud whose
+    header CRS is compound states its own (``EPSG:32632+5773``: EGM96); another vertical
+    datum (NAVD88...) is named, not converted.
 
     Raises
     ------
@@ -431,6 +433,15 @@ def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str
         )
     if all(logs):
         return {}
+    if all(point_format(p) == "las" for p in paths):  # a cloud's compound CRS states it
+        from terrain.vertical_datum import stated_or_given
+
+        from .point_clouds import stated_heights
+
+        stated, words = stated_heights(paths)
+        if stated is None and words:  # a vertical datum glacimap does not convert
+            return {"vertical_datum": words}
+        given = stated_or_given(stated, given, field, "clouds' CRS")
     if given is None:
         return {
             "vertical_datum": "the samples' z as given (their vertical datum not stated: "
