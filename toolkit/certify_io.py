@@ -33,6 +33,7 @@ __all__ = [
     "layer_columns",
     "read_checkpoints",
     "read_layer_table",
+    "read_point_table",
     "reproject_checkpoints",
 ]
 
@@ -203,7 +204,7 @@ def _float(text: Any, where: str) -> float:
         raise bad_input(where, text, "a number (m)", "fix the cell or leave it empty") from exc
 
 
-def _table(path: Path) -> dict[str, list[Any]]:
+def _table(path: Path, field: str = "CHECKPOINTS") -> dict[str, list[Any]]:
     """Columns of a CSV or Parquet file by lower-cased name (values as read)."""
     if path.suffix.lower() == ".parquet":
         import pyarrow.parquet as pq
@@ -211,9 +212,9 @@ def _table(path: Path) -> dict[str, list[Any]]:
         try:
             table = pq.read_table(path)
         except Exception as exc:  # pyarrow raises ArrowInvalid / OSError subclasses
-            raise bad_input("CHECKPOINTS", path.name, "a Parquet table", str(exc)) from exc
+            raise bad_input(field, path.name, "a Parquet table", str(exc)) from exc
         return {n.strip(): table.column(n).to_pylist() for n in table.column_names}
-    return read_text_table(path, "CHECKPOINTS").columns()
+    return read_text_table(path, field).columns()
 
 
 def _file_crs(path: Path | None, cols: dict[str, Any]) -> tuple[Any, str] | None:
@@ -350,7 +351,17 @@ def read_checkpoints(path: str | os.PathLike, crs: Any = None) -> Checkpoints:
         )
     if kind == "vector":
         return read_layer_table(path, crs, digest)[0]
-    return _from_columns(_table(path), path.name, crs, path, digest)
+    return read_point_table(path, crs, digest)[0]
+
+
+def read_point_table(
+    path: Path, crs: Any = None, sha256: str | None = None, field: str = "CHECKPOINTS"
+) -> tuple[Checkpoints, dict[str, Any]]:
+    """A CSV or Parquet table as :class:`Checkpoints` and its columns as read (one parse:
+    ``glacimap reconstruct`` reads its noise columns there); errors name ``field``."""
+    cells = _table(path, field)
+    digest = file_sha256(path) if sha256 is None else sha256
+    return _from_columns(cells, path.name, crs, path, digest), cells
 
 
 def read_layer_table(

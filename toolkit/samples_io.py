@@ -10,12 +10,9 @@ from typing import Any
 import numpy as np
 from pyproj import CRS, Transformer
 
-from factorgraph.field.table import read_text_table
 from terrain import ElevationSamples
 from terrain.errors import bad_input
 from terrain.grid import utm_crs
-
-from .certify_io import read_checkpoints
 
 __all__ = ["SampleTable", "read_sample_files", "read_samples", "sample_columns"]
 
@@ -148,11 +145,10 @@ def read_samples(
         from .certify_io import read_layer_table
 
         table, cells = read_layer_table(path, crs, field="SAMPLES")
-    else:
-        import pandas as pd  # a quoted crs column (a WKT with commas) is one field
+    else:  # one parse of the file: its x, y, z and the noise columns
+        from .certify_io import read_point_table
 
-        table = read_checkpoints(path, crs=crs)
-        cells = read_text_table(path, "SAMPLES").columns()  # the checkpoints' delimiters
+        table, cells = read_point_table(path, crs, field="SAMPLES")
     if table.crs is None:
         raise bad_input(
             "--crs",
