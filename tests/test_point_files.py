@@ -289,3 +289,15 @@ def test_a_clouds_compound_crs_states_its_heights(tmp_path):
     feet = _las(tmp_path / "feet.laz", xy, z, crs="EPSG:32618+6360")
     with pytest.raises(InputError, match="US survey foot"):
         read_sample_files([feet])
+
+
+def test_a_parquet_table_of_samples_reads_as_its_csv(tmp_path):
+    xy = _points(100, seed=10)
+    frame = pd.DataFrame({"x": xy[:, 0], "y": xy[:, 1], "z": _surface(*xy.T), "sigma": 0.1})
+    frame.to_parquet(tmp_path / "s.parquet")
+    frame.to_csv(tmp_path / "s.csv", index=False)
+    a = read_sample_files([tmp_path / "s.parquet"], crs=UTM)
+    b = read_sample_files([tmp_path / "s.csv"], crs=UTM)
+    np.testing.assert_array_equal(a.samples.xy, b.samples.xy)
+    np.testing.assert_array_equal(a.samples.z_var, b.samples.z_var)
+    np.testing.assert_allclose(a.samples.z_var, 0.01)
