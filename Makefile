@@ -48,6 +48,7 @@ bench: setup
 	$(BIN)/python benchmarks/real_contours.py --out benchmarks/results/real_contours.json
 	$(BIN)/python benchmarks/profile_prior.py --out benchmarks/results/profile_prior.json
 	$(BIN)/python benchmarks/gnss_heights.py --out benchmarks/results/gnss_heights.json
+	$(BIN)/python benchmarks/point_cloud.py --out benchmarks/results/point_cloud.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache
