@@ -362,3 +362,24 @@ def test_report_of_a_surveyors_own_certified_geotiff(grid, truth, centres, tmp_p
     assert isinstance(res.exception, InputError), res.output
     assert "mine.tif" in str(res.exception) and "--dem" in str(res.exception)
     assert not (out / "report.html").exists()
+
+
+def test_the_checkpoints_stated_sigma_is_their_survey_rmse_unless_given(grid, truth, centres):
+    # ASPRS 2014 / 2023 add the checkpoint survey's own RMSE: the RMS of the stated z_std
+    # (hand value: sqrt((0.03^2 + 0.04^2) / 2) = 0.03536 m) unless --checkpoint-rmse is given.
+    rows, cols, xy = centres
+    cps = {"x": xy[:, 0], "y": xy[:, 1], "z": truth[rows, cols] + 0.1, "crs": CRS}
+    cps["z_std"] = np.where(np.arange(len(rows)) % 2 == 0, 0.03, 0.04)
+    cert = certify(_product(grid, truth), cps)
+    p = cert["parameters"]
+    assert p["checkpoint_rmse_m"] == pytest.approx(np.sqrt((0.03**2 + 0.04**2) / 2))
+    assert "stated 1-sigma" in p["checkpoint_rmse_source"]
+    rmse = cert["accuracy"]["rmse_m"]
+    assert cert["accuracy"]["rmse_with_checkpoint_error_m"] == pytest.approx(
+        np.hypot(rmse, p["checkpoint_rmse_m"])
+    )
+    given = certify(_product(grid, truth), cps, checkpoint_rmse_m=0.0)["parameters"]
+    assert given["checkpoint_rmse_m"] == 0.0 and given["checkpoint_rmse_source"].startswith("given")
+    del cps["z_std"]
+    bare = certify(_product(grid, truth), cps)["parameters"]
+    assert bare["checkpoint_rmse_m"] == 0.0 and "not stated" in bare["checkpoint_rmse_source"]

@@ -208,12 +208,23 @@ def require_checkpoints_on(checkpoints: Any, grid: Any, crs: Any = None) -> Chec
     return cps
 
 
+def _checkpoint_rmse(given: float | None, cps: Checkpoints, used: np.ndarray) -> tuple[float, str]:
+    """The checkpoint survey's own RMSE (ASPRS 2014 / 2023): ``given``, else the RMS of the
+    used checkpoints' stated 1-sigma, else 0; and where it came from."""
+    if given is not None:
+        return float(given), "given (--checkpoint-rmse)"
+    if cps.z_std is not None and np.isfinite(cps.z_std[used]).all():
+        rms = float(np.sqrt(np.mean(cps.z_std[used] ** 2)))
+        return rms, f"the RMS of the {int(used.sum())} checkpoints' stated 1-sigma (z_std)"
+    return 0.0, "not stated (no z_std column, no --checkpoint-rmse): taken as 0"
+
+
 def certify(
     dem: Any,
     checkpoints: Checkpoints | str | os.PathLike | Mapping[str, Any],
     *,
     contour_interval_m: float | None = None,
-    checkpoint_rmse_m: float = 0.0,
+    checkpoint_rmse_m: float | None = None,
     seed: int = 0,
     n_boot: int = 2000,
     feature: str = "contour",
@@ -237,8 +248,10 @@ def certify(
     contour_interval_m : float, optional
         Interval to certify (m). Default: the finest interval ASPRS 1990 Class 1 allows
         (CI = 3 RMSE_z for contours), rounded up to :data:`CONVENTIONAL_INTERVALS_M`.
-    checkpoint_rmse_m : float
-        RMSE of the checkpoint survey itself (m); used by ASPRS 2014/2023 rules.
+    checkpoint_rmse_m : float, optional
+        RMSE of the checkpoint survey itself (m); used by ASPRS 2014/2023 rules. Default: the
+        root mean square of the used checkpoints' stated 1-sigma (``z_std``) when they state
+        one, else 0; ``parameters.checkpoint_rmse_source`` says which.
     seed, n_boot : int
         Seed of ``numpy.random.default_rng`` and number of bootstrap resamples for the RMSE
         confidence interval.
@@ -275,7 +288,8 @@ def certify(
     """
     if not isinstance(feature, str) or feature not in ("contour", "spot"):
         raise bad_input("feature", feature, "'contour' or 'spot'", "ASPRS 1990 feature type")
-    cp_rmse = standards.combined_rmse_with_checkpoints(0.0, checkpoint_rmse_m)  # validates it
+    if checkpoint_rmse_m is not None:  # validated before any work
+        standards.combined_rmse_with_checkpoints(0.0, checkpoint_rmse_m)
     if contour_interval_m is not None and not (
         math.isfinite(float(contour_interval_m)) and float(contour_interval_m) > 0
     ):
@@ -295,6 +309,7 @@ def certify(
         raise _none_usable(cps, nan, unprojectable, outside, nodata)
     err = dem_z[used] - cps.z[used]
     rmse = float(np.sqrt(np.mean(err**2)))
+    cp_rmse, cp_source = _checkpoint_rmse(checkpoint_rmse_m, cps, used)
     lo, hi = bootstrap_rmse_ci(err, n_boot=n_boot, seed=seed)
     accuracy = {
         "n": n,
@@ -398,6 +413,7 @@ def certify(
         "parameters": {
             "contour_interval_m": contour_interval_m,
             "checkpoint_rmse_m": cp_rmse,
+            "checkpoint_rmse_source": cp_source,
             "feature": feature,
             "n_boot": int(n_boot),
             "bootstrap": "percentile, numpy.random.default_rng(seed)",

@@ -75,8 +75,12 @@ def certify_command(
         typer.Option(help="Contour interval to certify, m (default: finest ASPRS 1990 Class 1)."),
     ] = None,
     checkpoint_rmse: Annotated[
-        float, typer.Option(help="RMSE of the checkpoint survey itself, m.")
-    ] = 0.0,
+        float | None,
+        typer.Option(
+            help="RMSE of the checkpoint survey itself, m (default: the RMS of the "
+            "checkpoints' z_std column when they have one, else 0)."
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the bootstrap.")] = 0,
     n_boot: Annotated[int, typer.Option(help="Bootstrap resamples for the RMSE CI.")] = 2000,
     crs: Annotated[
