@@ -34,10 +34,10 @@ from pyproj import CRS, Transformer
 from terrain import ElevationSamples
 from terrain.block_samples import BlockAccumulator, BlockOccupancy, BlockReduction
 from terrain.errors import bad_input
-from terrain.grid import check_same_crs, utm_crs
+from terrain.grid import check_same_crs
 
 from .point_files import check_metres
-from .samples_io import SampleTable
+from .samples_io import SampleTable, utm_zone_for
 
 __all__ = ["CHUNK_POINTS", "CloudScan", "cloud_table", "scan_clouds", "stated_heights"]
 
@@ -218,14 +218,8 @@ def scan_clouds(
     e, n = hi[keep].max(axis=0)
     transformer, map_crs = None, use
     if use.is_geographic:  # degrees: to the UTM zone of the kept points' centre
-        map_crs = utm_crs((w + e) / 2, (s + n) / 2)
-        if map_crs is None:
-            raise bad_input(
-                "SAMPLES coordinates",
-                f"lon {(w + e) / 2:.3f}, lat {(s + n) / 2:.3f}",
-                "a site inside UTM's latitudes (80 S - 84 N) to be projected to its zone",
-                "reproject the cloud to a polar stereographic CRS (EPSG:3031 / 3413)",
-            )
+        fix = "reproject the cloud to a polar stereographic CRS (EPSG:3031 / 3413)"
+        map_crs = utm_zone_for((w + e) / 2, (s + n) / 2, fix)
         transformer = Transformer.from_crs(use, map_crs, always_xy=True)
         xs, ys = transformer.transform([w, w, e, e], [s, n, s, n])
         pad = 0.001 * max(np.ptp(xs), np.ptp(ys))  # a graticule box's edges bow in UTM

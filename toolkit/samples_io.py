@@ -14,7 +14,13 @@ from terrain import ElevationSamples
 from terrain.errors import bad_input
 from terrain.grid import utm_crs
 
-__all__ = ["SampleTable", "read_sample_files", "read_samples", "sample_columns"]
+__all__ = [
+    "SampleTable",
+    "read_sample_files",
+    "read_samples",
+    "sample_columns",
+    "utm_zone_for",
+]
 
 #: Optional columns of a samples table (what ``glacimap localize`` / ``process`` write).
 OPTIONAL = ("z_var", "track_z_std_m", "shared_offset_std_m", "t_s")
@@ -228,19 +234,27 @@ def read_samples(
     return SampleTable(samples, np.asarray(track, float), shared, note)
 
 
-def _projected(xy: np.ndarray, crs: CRS) -> tuple[np.ndarray, CRS, str]:
-    """``xy`` in a projected CRS: as they are, or from degrees to their UTM zone (said)."""
-    if not crs.is_geographic:
-        return xy, crs, ""
-    lon, lat = np.median(xy, axis=0)  # the samples' median position
+def utm_zone_for(lon: float, lat: float, fix: str) -> CRS:
+    """The UTM zone the samples at ``lon, lat`` (degrees) are projected to; beyond UTM's
+    latitudes an ``InputError`` whose fix is ``fix`` (a polar stereographic CRS)."""
     map_crs = utm_crs(lon, lat)
     if map_crs is None:
         raise bad_input(
             "SAMPLES coordinates",
             f"lon {lon:.3f}, lat {lat:.3f}",
             "a site inside UTM's latitudes (80 S - 84 N) to be projected to its zone",
-            "project them to a polar stereographic CRS (EPSG:3031 / 3413) and pass --crs",
+            fix,
         )
+    return map_crs
+
+
+def _projected(xy: np.ndarray, crs: CRS) -> tuple[np.ndarray, CRS, str]:
+    """``xy`` in a projected CRS: as they are, or from degrees to their UTM zone (said)."""
+    if not crs.is_geographic:
+        return xy, crs, ""
+    lon, lat = np.median(xy, axis=0)  # the samples' median position
+    fix = "project them to a polar stereographic CRS (EPSG:3031 / 3413) and pass --crs"
+    map_crs = utm_zone_for(lon, lat, fix)
     tr = Transformer.from_crs(crs, map_crs, always_xy=True)
     xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
     return (
