@@ -191,6 +191,10 @@ def test_a_cloud_without_a_crs_needs_one_and_a_contradiction_is_refused(tmp_path
         read_sample_files([_las(tmp_path / "c.las", xy, _surface(*xy.T))], crs="EPSG:32632")
     with pytest.raises(InputError, match="--point-classes"):
         read_sample_files([tmp_path / "c.las"], point_classes=(99,))
+    whole = _las(tmp_path / "whole.laz", _points(50_000, seed=5), np.zeros(50_000)).read_bytes()
+    (tmp_path / "cut.laz").write_bytes(whole[: len(whole) // 2])  # a download cut short
+    with pytest.raises(InputError, match="laspy reads.*cut.laz"):
+        read_sample_files([tmp_path / "cut.laz"])
 
 
 def test_auto_reduces_a_dense_cloud_but_never_a_rovers_samples(tmp_path):

@@ -98,7 +98,16 @@ def _read(
     with code -1) or the kept ones only, projected by ``transformer``."""
     for path in paths:
         with _open(path, "SAMPLES") as reader:
-            for pts in reader.chunk_iterator(CHUNK_POINTS):
+            chunks = reader.chunk_iterator(CHUNK_POINTS)
+            while True:
+                try:  # a file cut short or corrupt fails here, a chunk in
+                    pts = next(chunks)
+                except StopIteration:
+                    break
+                except Exception as exc:  # lazrs' LazrsError, laspy's LaspyException
+                    raise bad_input(
+                        "SAMPLES", path.name, "a LAS / LAZ file laspy reads to its end", str(exc)
+                    ) from exc
                 code = np.asarray(pts.classification, dtype=np.int64)
                 code = np.where(np.asarray(pts.withheld, dtype=bool), -1, code)
                 mask = slice(None) if keep is None else np.flatnonzero((code >= 0) & keep[code])
