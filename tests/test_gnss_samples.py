@@ -288,3 +288,33 @@ def test_several_days_of_logs_are_one_survey(tmp_path):
     )  # fmt: skip
     assert r.exit_code == 0, r.output
     assert len(pd.read_csv(tmp_path / "m" / "samples.csv")) == len(xy)
+
+
+def test_a_gpx_of_waypoints_gives_independent_spot_heights(tmp_path):
+    # A handheld receiver's marked waypoints (stakes, spot heights), no track: each with
+    # <ele> is a sample, its sea-level height carried to the ellipsoid (EGM96's N by pyproj's
+    # own transform), no along-track term; one without <ele> is counted, not used.
+    xy = _profile(n_lines=2, step=30.0)
+    h = _surface(*xy.T)
+    lon, lat = TO_LL.transform(xy[:, 0], xy[:, 1])
+    ele = h - _undulation(lon, lat) + 1.0  # held 1 m above the snow
+    g = gpxpy.gpx.GPX()
+    for k in range(len(h)):
+        w = gpxpy.gpx.GPXWaypoint(lat[k], lon[k], elevation=round(float(ele[k]), 3))
+        w.horizontal_dilution = 1.2
+        g.waypoints.append(w)
+    g.waypoints.append(gpxpy.gpx.GPXWaypoint(float(lat[0]) + 0.001, float(lon[0])))  # no ele
+    path = tmp_path / "stakes.gpx"
+    path.write_text(g.to_xml())
+    s, track, note = read_gnss_samples(path, UTM, antenna_height_m=1.0)
+    assert s.n == len(h) and not track.any() and "t_s" not in s.extra
+    np.testing.assert_allclose(s.z, h, atol=2e-3)
+    words = " ".join(note.split())
+    assert f"no track, {len(h)} waypoints read as spot heights" in words
+    assert "1 waypoints not used {'no_elevation': 1}" in words
+    assert "GPX ele states no datum: read as above EGM96" in words
+    empty = gpxpy.gpx.GPX()
+    empty.waypoints.append(gpxpy.gpx.GPXWaypoint(60.0, -135.0))
+    (tmp_path / "bare.gpx").write_text(empty.to_xml())
+    with pytest.raises(InputError, match="bare.gpx waypoints.*none with an elevation"):
+        read_gnss_samples(tmp_path / "bare.gpx", UTM)

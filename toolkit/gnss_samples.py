@@ -84,6 +84,51 @@ def _read(path: Path, fmt: str) -> tuple[Any, str]:
         ), "no UTC date in the log (no RMC / ZDA): times relative"
 
 
+def _gpx_waypoints(path: Path) -> Any:
+    """A GPX without track points but with waypoints (a handheld GPS's marked spot heights,
+    glaciological stakes): the waypoints as fixes without times, or None for a track."""
+    from types import SimpleNamespace
+
+    import gpxpy
+
+    from factorgraph.field.fixes import UERE_M, sigma_from_dop
+    from factorgraph.field.gpx import FIX_KIND
+
+    try:
+        doc = gpxpy.parse(path.read_text(errors="replace"))
+    except Exception:  # gpxpy's GPXException: read_gpx says it in words
+        return None
+    if any(seg.points for trk in doc.tracks for seg in trk.segments) or not doc.waypoints:
+        return None
+    rows, skipped = [], Counter()
+    for w in doc.waypoints:
+        kind = FIX_KIND.get(w.type_of_gpx_fix, "unknown_fix_type")
+        if kind not in UERE_M:
+            skipped[kind] += 1
+        elif w.elevation is None:
+            skipped["no_elevation"] += 1
+        else:
+            hdop = math.nan if w.horizontal_dilution is None else float(w.horizontal_dilution)
+            vdop = None if w.vertical_dilution is None else float(w.vertical_dilution)
+            sep = w.geoid_height
+            h = float(w.elevation) + (0.0 if sep is None else float(sep))
+            rows.append((w.latitude, w.longitude, h, sep is None, kind,
+                         *sigma_from_dop(kind, hdop, vdop, UERE_M)))  # fmt: skip
+    if not rows:
+        raise bad_input(
+            f"{path.name} waypoints",
+            f"{len(doc.waypoints)} waypoints, none with an elevation ({dict(skipped)})",
+            "waypoints with <ele> (or a recorded track)",
+            "export the waypoints with their elevations",
+        )
+    lat, lon, h, unstated, kinds, se, sn, su = map(np.array, zip(*rows, strict=True))
+    return SimpleNamespace(
+        lat_deg=lat.astype(float), lon_deg=lon.astype(float), h_m=h.astype(float),
+        height_unstated=unstated.astype(bool), height_datum="ellipsoidal", quality=kinds,
+        sigma=np.column_stack([se, sn, su]).astype(float), skipped=skipped,
+    )  # fmt: skip
+
+
 #: What a log's heights are above when it does not say (``--gnss-heights auto``): GPX
 #: ``ele`` as consumer receivers write it (sea level: their geoid, EGM96 here); an NMEA GGA
 #: without the geoid separation as read (a receiver without a geoid model gives the
@@ -161,7 +206,8 @@ def read_gnss_samples(
     ----------
     path : path
         NMEA 0183 (GGA, with RMC / ZDA for the date and GST for 1-sigmas), GPX 1.0 / 1.1
-        (``trkpt`` with ``ele`` and ``time``) or an RTKLIB ``.pos`` solution.
+        (``trkpt`` with ``ele`` and ``time``; a GPX without a track: its waypoints with
+        ``ele``, as independent spot heights) or an RTKLIB ``.pos`` solution.
     crs : str or pyproj.CRS, optional
         Projected CRS of the map; default the UTM zone of the fixes' median position.
     antenna_height_m : float
@@ -207,7 +253,8 @@ def read_gnss_samples(
     fmt = gnss_format(path)
     if fmt is None:
         raise bad_input(str(path.name), "not a GNSS log", "NMEA, GPX or RTKLIB .pos", "")
-    fixes, date_note = _read(path, fmt)
+    waypoints = _gpx_waypoints(path) if fmt == "gpx" else None
+    fixes, date_note = (waypoints, "") if waypoints is not None else _read(path, fmt)
     up = np.asarray(fixes.sigma[:, 2], float)
     kinds = np.asarray(fixes.quality).astype(str)
     unstated = ~(np.isfinite(up) & (up > 0))
@@ -217,6 +264,21 @@ def read_gnss_samples(
     x, y = tr.transform(fixes.lon_deg, fixes.lat_deg)
     h, height_note = _ellipsoidal(fixes, fmt, heights)
     z = h - antenna_height_m
+    if waypoints is not None:  # marked spot heights: independent, no times
+        samples = ElevationSamples(np.column_stack([x, y]), z, up**2, crs=map_crs.to_string())
+        skipped = {k: v for k, v in waypoints.skipped.items() if v}
+        parts = [
+            f"{path.name}: no track, {z.size} waypoints read as spot heights (independent errors)",
+            f"{sum(skipped.values())} waypoints not used {skipped}" if skipped else "",
+            f"heights: ellipsoidal minus the antenna height {antenna_height_m:g} m",
+            height_note,
+            f"{int(unstated.sum())} waypoints state no DOP: their kind's UERE x {VERTICAL_FACTOR:g}"
+            if unstated.any()
+            else "",
+            crs_note,
+            f"{z.size - samples.n} at a repeated position merged" if samples.n != z.size else "",
+        ]
+        return samples, np.zeros(samples.n), "; ".join(p for p in parts if p)
     t = np.asarray(fixes.utc_s, float)  # UTC, POSIX s: logs of several days combine
     samples = ElevationSamples(
         np.column_stack([x, y]), z, up**2, crs=map_crs.to_string(), extra={"t_s": t}
