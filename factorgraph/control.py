@@ -35,6 +35,7 @@ __all__ = [
     "add_control_factors",
     "check_in_area",
     "check_independent",
+    "control_from_rows",
     "control_report",
     "plan_control",
     "read_control",
@@ -236,7 +237,19 @@ def read_control(
     if not path.is_file():
         raise bad_input("control file", str(path), "an existing CSV file", "check the path")
     table = read_text_table(path, "control file")
-    rows = [table.header, *table.rows]
+    return control_from_rows([table.header, *table.rows], path, crs, sigma_m, centring_sigma_m)
+
+
+def control_from_rows(
+    rows: list[list[str]],
+    path: Path,
+    crs: Any = None,
+    sigma_m: float | tuple[float, float, float] | None = None,
+    centring_sigma_m: float = 0.02,
+) -> ControlPoints:
+    """:func:`read_control` of rows already read as text (a header, then one row per point):
+    a CSV's, or a GIS layer's (``toolkit.point_files``); ``path`` names the file in errors
+    and finds a ``.crs`` / ``.prj`` sidecar."""
     if len(rows) < 2:
         raise bad_input("control file", str(path), "a header and >= 1 point", "add points")
     cols = _canonical(rows[0], path)

@@ -305,3 +305,34 @@ def test_a_parquet_table_of_samples_reads_as_its_csv(tmp_path):
     np.testing.assert_array_equal(a.samples.xy, b.samples.xy)
     np.testing.assert_array_equal(a.samples.z_var, b.samples.z_var)
     np.testing.assert_allclose(a.samples.z_var, 0.01)
+
+
+def test_ground_control_from_a_geopackage_as_from_a_csv(tmp_path):
+    # A surveyor's GCP layer: the geometry's x, y, Z, a name, a sigma, a note and a field the
+    # control reader does not know (dropped); the same ControlPoints as its CSV.
+    from factorgraph.control import read_control
+    from toolkit.point_files import read_control_layer
+
+    xy = _points(6, seed=11)
+    z = _surface(*xy.T)
+    names = np.array([f"GCP{k}" for k in range(6)])
+    gpkg = _layer(
+        tmp_path / "gcp.gpkg",
+        shapely.points(xy[:, 0], xy[:, 1], z),
+        fields={
+            "name": names,
+            "sigma": np.full(6, 0.02),
+            "description": np.array(["rock"] * 6),
+            "OBJECTID": np.arange(6),
+        },
+        geometry_type="Point Z",
+    )
+    csv = tmp_path / "gcp.csv"
+    pd.DataFrame(
+        {"id": names, "x": xy[:, 0], "y": xy[:, 1], "z": z, "sigma": 0.02, "crs": UTM}
+    ).to_csv(csv, index=False)
+    a, b = read_control_layer(gpkg), read_control(csv)
+    assert list(a.ids) == list(b.ids)
+    np.testing.assert_allclose(a.xyz, b.xyz, atol=1e-9)
+    np.testing.assert_allclose(a.sigma, b.sigma)
+    assert CRS.from_user_input(a.crs).equals(CRS(UTM)) and a.notes["description"][0] == "rock"

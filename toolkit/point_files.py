@@ -17,6 +17,7 @@ the map's distances, kernels and heights are metres.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from pyproj import CRS
@@ -31,6 +32,7 @@ __all__ = [
     "check_metres",
     "point_classes_option",
     "point_format",
+    "read_control_layer",
     "read_vector_points",
 ]
 
@@ -189,3 +191,43 @@ def read_vector_points(path: str | Path, field: str) -> VectorPoints:
             notes.append(f"heights as stored ({crs.sub_crs_list[-1].name})")
             crs = crs.sub_crs_list[0]
     return VectorPoints(coords[:, :2], z, fields, crs, "; ".join(notes))
+
+
+def read_control_layer(path: str | Path, crs: Any = None) -> Any:
+    """Ground control points from a GIS layer (a surveyor's GeoPackage or Shapefile): the
+    geometry's x, y (and Z), the attributes :data:`factorgraph.control.ALIASES` names (id,
+    height, 1-sigmas, target id) and free-text notes, the layer's CRS; other attributes are
+    left out. Read as a control CSV would be (:func:`factorgraph.control.control_from_rows`).
+
+    Returns
+    -------
+    factorgraph.control.ControlPoints
+    """
+    from factorgraph.control import ALIASES, NOTE_COLUMNS, control_from_rows
+    from factorgraph.field.table import header_key
+
+    path = Path(path)
+    layer = read_vector_points(path, "control file")
+    lookup = {a: name for name, names in ALIASES.items() for a in names}
+    header, cols = ["x", "y"], [layer.xy[:, 0], layer.xy[:, 1]]
+    if layer.z is not None:
+        header.append("z")
+        cols.append(layer.z)
+    for name, values in layer.fields.items():
+        canon = lookup.get(header_key(name, lookup))
+        keep = canon not in (None, "x", "y", "crs") and not (canon == "z" and layer.z is not None)
+        if keep or name.strip().lower() in NOTE_COLUMNS:
+            header.append(name)
+            cols.append(values)
+    if layer.crs is not None:
+        header.append("crs")
+        cols.append(np.full(layer.xy.shape[0], layer.crs.to_wkt()))
+    rows = [[_text(c[i]) for c in cols] for i in range(layer.xy.shape[0])]
+    return control_from_rows([header, *rows], path, crs)
+
+
+def _text(value: Any) -> str:
+    """A layer's cell as a control table's text (repr for floats: no digits lost)."""
+    if isinstance(value, float | np.floating):
+        return "" if not np.isfinite(value) else repr(float(value))
+    return "" if value is None else str(value)

@@ -211,10 +211,12 @@ def _control_and_checkpoints(control: Any, checkpoints: Any, log: MeasurementLog
     from factorgraph.control import ControlPoints, check_independent, read_control
 
     from .certify_io import Checkpoints, read_checkpoints
+    from .point_files import point_format, read_control_layer
 
     ctrl = control
     if control is not None and not isinstance(control, ControlPoints):
-        ctrl = read_control(control)
+        layer = point_format(control) == "vector"  # a surveyor's GeoPackage / Shapefile
+        ctrl = read_control_layer(control) if layer else read_control(control)
     if ctrl is not None:
         ctrl = ctrl.to_crs(log.crs)
     cps = checkpoints
