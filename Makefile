@@ -49,6 +49,7 @@ bench: setup
 	$(BIN)/python benchmarks/profile_prior.py --out benchmarks/results/profile_prior.json
 	$(BIN)/python benchmarks/gnss_heights.py --out benchmarks/results/gnss_heights.json
 	$(BIN)/python benchmarks/point_cloud.py --out benchmarks/results/point_cloud.json
+	$(BIN)/python benchmarks/dsm_voids.py --out benchmarks/results/dsm_voids.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

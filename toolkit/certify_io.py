@@ -342,12 +342,13 @@ def read_checkpoints(path: str | os.PathLike, crs: Any = None) -> Checkpoints:
         )
     digest = file_sha256(path)
     kind = point_format(path)
-    if kind == "las":
+    if kind in ("las", "atl06", "raster"):
         raise bad_input(
             "CHECKPOINTS",
             path.name,
-            "independent check points (a table or a GIS point layer), not a point cloud",
-            "map the cloud with glacimap reconstruct; survey checkpoints apart from it",
+            "independent check points (a table or a GIS point layer), not a cloud, a granule "
+            "or a raster",
+            "certify DEM CHECKPOINTS takes the DEM first; survey checkpoints apart from it",
         )
     if kind == "vector":
         return read_layer_table(path, crs, digest)[0]

@@ -142,16 +142,25 @@ def _header_crs(paths: list[Path], field_name: str) -> CRS | None:
 
 
 def stated_heights(paths: list[str | Path]) -> tuple[str | None, str]:
-    """The height datum the clouds' header CRS states: ``(datum, "")`` for the ellipsoid or
-    a geoid glacimap converts (:func:`terrain.vertical_datum.split_vertical`), ``(None,
-    words)`` for another vertical datum (named, not converted: ``change`` and ``certify``
-    take it as not stated), ``(None, "")`` when no header says."""
+    """The height datum the clouds' header CRS (or a raster's CRS) states: ``(datum, "")``
+    for the ellipsoid or a geoid glacimap converts
+    (:func:`terrain.vertical_datum.split_vertical`), ``(None, words)`` for another vertical
+    datum (named, not converted: ``change`` and ``certify`` take it as not stated),
+    ``(None, "")`` when no file says."""
     from terrain.errors import InputError
     from terrain.vertical_datum import split_vertical
 
+    from .point_files import point_format
+
     for path in map(Path, paths):
-        with _open(path, "SAMPLES") as reader:
-            crs = reader.header.parse_crs()
+        if point_format(path) == "raster":  # a DSM as samples: its GeoTIFF's CRS
+            import rasterio
+
+            with rasterio.open(path) as ds:
+                crs = None if ds.crs is None else CRS.from_wkt(ds.crs.to_wkt())
+        else:
+            with _open(path, "SAMPLES") as reader:
+                crs = reader.header.parse_crs()
         if crs is None or not crs.is_compound:
             continue
         try:

@@ -27,12 +27,14 @@ from terrain.errors import bad_input
 __all__ = [
     "HDF5_SUFFIXES",
     "LAS_SUFFIXES",
+    "RASTER_SUFFIXES",
     "VECTOR_SUFFIXES",
     "VectorPoints",
     "check_metres",
     "point_classes_option",
     "point_format",
     "read_control_layer",
+    "read_raster_points",
     "read_vector_points",
 ]
 
@@ -41,18 +43,24 @@ VECTOR_SUFFIXES = (".gpkg", ".shp", ".geojson", ".fgb", ".kml", ".gml", ".sqlite
 LAS_SUFFIXES = (".las", ".laz")
 #: HDF5: an ICESat-2 ATL06 granule (toolkit.icesat2).
 HDF5_SUFFIXES = (".h5", ".hdf5", ".he5")
+#: Rasters read as their cells (a drone DSM with voids to fill, :func:`read_raster_points`).
+RASTER_SUFFIXES = (".tif", ".tiff", ".vrt", ".img", ".asc")
+#: A raster's valid cells read at most (a larger one: coarsen it first).
+MAX_RASTER_CELLS = 25_000_000
 
 _GEOMETRY_WORDS = {0: "point", 1: "line", 2: "line", 3: "polygon", 4: "point", 5: "line"}
 
 
 def point_format(path: str | Path) -> str | None:
-    """``"vector"``, ``"las"``, ``"atl06"`` or None (a CSV, Parquet or GNSS log), by the
-    file's suffix."""
+    """``"vector"``, ``"las"``, ``"atl06"``, ``"raster"`` or None (a CSV, Parquet or GNSS
+    log), by the file's suffix."""
     suffix = Path(path).suffix.lower()
     if suffix in LAS_SUFFIXES:
         return "las"
     if suffix in HDF5_SUFFIXES:
         return "atl06"
+    if suffix in RASTER_SUFFIXES:
+        return "raster"
     return "vector" if suffix in VECTOR_SUFFIXES else None
 
 
@@ -231,3 +239,56 @@ def _text(value: Any) -> str:
     if isinstance(value, float | np.floating):
         return "" if not np.isfinite(value) else repr(float(value))
     return "" if value is None else str(value)
+
+
+def read_raster_points(
+    path: str | Path, crs: Any = None
+) -> tuple[np.ndarray, np.ndarray, CRS, str]:
+    """A raster DEM's valid cells as points (a drone DSM or a DEM with voids, mapped with a
+    1-sigma where it has none): each cell's centre and height in metres (a band scale,
+    offset or heights in feet applied, :func:`terrain.raster_source.open_source`).
+
+    Returns
+    -------
+    (xy, z, crs, note)
+        Centres (n, 2) in the raster's horizontal CRS, heights (n,) m, that CRS, and what
+        was read and left to fill.
+
+    Raises
+    ------
+    InputError
+        A raster GDAL cannot read, with no CRS and no ``crs`` (or one that disagrees), rotated,
+        without a valid cell, or with more than :data:`MAX_RASTER_CELLS` valid cells.
+    """
+    from terrain.raster_source import open_source
+
+    path = Path(path)
+    src = open_source(path, crs)
+    h, w = src.shape
+    if h * w > 4 * MAX_RASTER_CELLS:  # checked before reading: a national DEM is not a survey
+        raise bad_input(
+            "SAMPLES",
+            f"{path.name} ({h:,} x {w:,} cells)",
+            f"a raster of at most {MAX_RASTER_CELLS:,} valid cells",
+            "coarsen or clip it first (gdalwarp -tr 10 10 -te W S E N in.tif out.tif)",
+        )
+    values, t = src.read(src.bounds, pad=0)
+    valid = np.isfinite(values)
+    n = int(valid.sum())
+    if not n or n > MAX_RASTER_CELLS:
+        raise bad_input(
+            "SAMPLES",
+            f"{path.name} ({n:,} valid cells)",
+            f"a raster with 1 to {MAX_RASTER_CELLS:,} valid cells",
+            "coarsen or clip it first (gdalwarp -tr 10 10 -te W S E N in.tif out.tif)",
+        )
+    rows, cols = np.nonzero(valid)
+    xy = np.column_stack([t.c + t.a * (cols + 0.5), t.f + t.e * (rows + 0.5)])
+    out = src.crs.sub_crs_list[0] if src.crs.is_compound else src.crs
+    res = f"{abs(t.a):g} x {abs(t.e):g}"
+    note = (
+        f"{path.name}: {n:,} cells of {res} read as samples at their centres "
+        f"({values.size - n:,} voids, nodata, left to the map); heights {src.vertical}; "
+        "a raster states no per-cell noise"
+    )
+    return xy, values[valid], out, note

@@ -143,6 +143,14 @@ def read_samples(
         from .icesat2 import read_atl06
 
         return read_atl06(path, crs)
+    if kind == "raster":  # a DSM's valid cells (voids to fill); reduced as any survey
+        from .point_files import read_raster_points
+
+        xy, z, raster_crs, note = read_raster_points(path, crs)
+        xy, map_crs, moved = _projected(xy, raster_crs)
+        samples = ElevationSamples(xy, z, 0.0, crs=map_crs.to_string())
+        note = f"{note}; {moved}" if moved else note
+        return SampleTable(samples, np.zeros(samples.n), 0.0, note)
     if kind == "las":  # every kept point (read_sample_files reduces clouds in chunks)
         from .point_clouds import cloud_table
 
@@ -443,7 +451,7 @@ def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str
         )
     if all(logs):
         return {}
-    if all(point_format(p) == "las" for p in paths):  # a cloud's compound CRS states it
+    if all(point_format(p) in ("las", "raster") for p in paths):  # a compound CRS states it
         from terrain.vertical_datum import stated_or_given
 
         from .point_clouds import stated_heights
