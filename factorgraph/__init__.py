@@ -33,7 +33,8 @@ from .control_sim import simulate_control
 # estimation
 from .localize import LocalizeParams, localize
 from .result import LocalizationResult
-from .control import ControlPoints, check_in_area, check_independent, read_control
+from .control import ControlPoints, check_in_area, check_independent
+from .control_io import read_control
 from .select import LandmarkSelection, select_landmarks
 
 # evaluation

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from pyproj import Transformer
 
-from factorgraph.control import ControlPoints, check_in_area, check_independent, read_control
+from factorgraph.control import ControlPoints, check_in_area, check_independent
+from factorgraph.control_io import read_control
 from terrain.errors import InputError
 
 UTM = "EPSG:32608"

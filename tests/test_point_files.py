@@ -310,7 +310,7 @@ def test_a_parquet_table_of_samples_reads_as_its_csv(tmp_path):
 def test_ground_control_from_a_geopackage_as_from_a_csv(tmp_path):
     # A surveyor's GCP layer: the geometry's x, y, Z, a name, a sigma, a note and a field the
     # control reader does not know (dropped); the same ControlPoints as its CSV.
-    from factorgraph.control import read_control
+    from factorgraph.control_io import read_control
     from toolkit.point_files import read_control_layer
 
     xy = _points(6, seed=11)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from factorgraph.control import read_control
+from factorgraph.control_io import read_control
 from factorgraph.field.table import header_key, read_text_table
 from terrain import Grid, InputError, random_terrain
 from terrain.product import terrain_dataset

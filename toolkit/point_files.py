@@ -203,15 +203,15 @@ def read_vector_points(path: str | Path, field: str) -> VectorPoints:
 
 def read_control_layer(path: str | Path, crs: Any = None) -> Any:
     """Ground control points from a GIS layer (a surveyor's GeoPackage or Shapefile): the
-    geometry's x, y (and Z), the attributes :data:`factorgraph.control.ALIASES` names (id,
+    geometry's x, y (and Z), the attributes :data:`factorgraph.control_io.ALIASES` names (id,
     height, 1-sigmas, target id) and free-text notes, the layer's CRS; other attributes are
-    left out. Read as a control CSV would be (:func:`factorgraph.control.control_from_rows`).
+    left out. Read as a control CSV would be (:func:`factorgraph.control_io.control_from_rows`).
 
     Returns
     -------
     factorgraph.control.ControlPoints
     """
-    from factorgraph.control import ALIASES, NOTE_COLUMNS, control_from_rows
+    from factorgraph.control_io import ALIASES, NOTE_COLUMNS, control_from_rows
     from factorgraph.field.table import header_key
 
     path = Path(path)

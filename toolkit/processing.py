@@ -208,7 +208,8 @@ def _named_by_file(mean: RasterMean) -> RasterMean:
 
 
 def _control_and_checkpoints(control: Any, checkpoints: Any, log: MeasurementLog):
-    from factorgraph.control import ControlPoints, check_independent, read_control
+    from factorgraph.control import ControlPoints, check_independent
+    from factorgraph.control_io import read_control
 
     from .certify_io import Checkpoints, read_checkpoints
     from .point_files import point_format, read_control_layer
