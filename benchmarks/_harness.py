@@ -75,3 +75,17 @@ def paper_prior_map(sel: Any, truth: Any, scenario: dict[str, Any]) -> Any:
     )
     mean = TriangulatedMean(coarse_dem(truth, cells=(8, 8)))
     return reconstruct_selection(sel, grid, mean, scenario, int(scenario["seed"]), 0).product
+
+
+def real_dems_or_skip(out: Path, name: str) -> bool:
+    """True when the real DEMs can be had (``scripts/real_dems.py``); else print why and write
+    ``{"benchmark": name, "skipped": why}`` to ``out`` (the benchmark then returns 0)."""
+    import real_dems
+
+    try:
+        real_dems.fetch()
+    except real_dems.RealDataUnavailable as exc:
+        print(f"skipped: {exc}")
+        write_json(out, {"benchmark": name, "skipped": str(exc)})
+        return False
+    return True

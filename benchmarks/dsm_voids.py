@@ -26,7 +26,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "scripts"))
-from _harness import table, write_json  # noqa: E402
+from _harness import real_dems_or_skip, table, write_json  # noqa: E402
 
 VOIDS = ((200.0, 200.0, 40.0), (420.0, 380.0, 25.0), (150.0, 480.0, 15.0))  # from the NW, m
 NOISE_SD = 0.05
@@ -83,13 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sites", nargs="+", default=["olinda", "rm", "bei", "gorillas"])
     ap.add_argument("--out", type=Path, default=HERE / "results" / "dsm_voids.json")
     args = ap.parse_args(argv)
-    import real_dems
 
-    try:
-        real_dems.fetch()
-    except real_dems.RealDataUnavailable as exc:
-        print(f"skipped: {exc}")
-        write_json(args.out, {"benchmark": "dsm_voids", "skipped": str(exc)})
+    if not real_dems_or_skip(args.out, "dsm_voids"):
         return 0
     rows = [case(site) for site in args.sites]
     print(

@@ -39,7 +39,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "scripts"))
-from _harness import table, write_json  # noqa: E402
+from _harness import real_dems_or_skip, table, write_json  # noqa: E402
 
 CASES = {
     "auto": ["--prior", "{prior}"],
@@ -173,16 +173,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--out", type=Path, default=HERE / "results" / "gnss_heights.json")
     args = ap.parse_args(argv)
-    import real_dems
     from typer.testing import CliRunner
 
     from toolkit.cli import app
 
-    try:
-        real_dems.fetch()
-    except real_dems.RealDataUnavailable as exc:
-        print(f"skipped: {exc}")
-        write_json(args.out, {"benchmark": "gnss_heights", "skipped": str(exc)})
+    if not real_dems_or_skip(args.out, "gnss_heights"):
         return 0
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -32,7 +32,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "scripts"))
-from _harness import table, write_json  # noqa: E402
+from _harness import real_dems_or_skip, table, write_json  # noqa: E402
 
 HOLES = ((180.0, 400.0, 40.0), (430.0, 170.0, 30.0))  # (x, y from the site's corner, radius) m
 NOISE_SD = 0.08
@@ -129,13 +129,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--density", type=float, default=4.0, help="points per m^2")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "point_cloud.json")
     args = ap.parse_args(argv)
-    import real_dems
 
-    try:
-        real_dems.fetch()
-    except real_dems.RealDataUnavailable as exc:
-        print(f"skipped: {exc}")
-        write_json(args.out, {"benchmark": "point_cloud", "skipped": str(exc)})
+    if not real_dems_or_skip(args.out, "point_cloud"):
         return 0
     rows = [case(site, args.density) for site in args.sites]
     print(
