@@ -221,6 +221,9 @@ class TerrainGP(HyperparameterMixin):
         self._check_settings()
         check_samples(samples)  # terrain/gp_settings.py
         t0 = time.perf_counter()
+        # Every draw below is over the samples' indices: in order of position, the same
+        # survey in any row order gives the same map (docs/terrain.md, session 46).
+        samples = samples.by_position()
         rng = np.random.default_rng(self.seed)
         mean = bind_mean(as_mean_function(self.mean), samples.crs, samples.xy)
         check_same_crs(getattr(mean, "crs", None), samples.crs, "mean", "samples")

@@ -350,6 +350,7 @@ def sample_hyperparameters(
             raise bad_input(field_, value, expected, "see sample_hyperparameters' docstring")
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
+    samples = samples.by_position()  # the subset's draw is over indices: any row order
     number = isinstance(mean, Real) and not isinstance(mean, bool)
     const = number or mean is None or (isinstance(mean, str) and mean.lower() == "constant")
     base = None if const else as_mean_function(mean)

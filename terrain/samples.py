@@ -146,6 +146,22 @@ class ElevationSamples:
             duplicates="raise",
         )
 
+    def by_position(self) -> ElevationSamples:
+        """The same samples in order of position: easting, then northing (both ascending).
+
+        Every draw a fit makes over the samples (its fit subset, Vecchia orders, evidence
+        windows) is made over their indices, so a fit on ``by_position()`` gives the same map,
+        to the bit, whatever order the survey's rows came in (docs/terrain.md "The map no
+        longer follows the samples' order"). Locations are unique after the duplicate policy,
+        so the order is total. Returns ``self`` when the samples are already in that order.
+        """
+        order = np.lexsort((self.xy[:, 1], self.xy[:, 0]))
+        if np.array_equal(order, np.arange(self.n)):
+            return self
+        ordered = self.subset(order)
+        object.__setattr__(ordered, "n_merged", self.n_merged)  # merged before the order
+        return ordered
+
     def __repr__(self) -> str:
         crs = self.crs.to_string() if self.crs is not None else None
         return (

@@ -86,8 +86,10 @@ def mean_error_variance(err: np.ndarray, xy: np.ndarray) -> dict[str, Any] | Non
     # the variogram from at most _VARIOGRAM_POINTS of them (seeded: pairs grow as n^2); the
     # mean's variance below sums over all
     sub = np.arange(n)
-    if n > _VARIOGRAM_POINTS:
-        sub = np.sort(np.random.default_rng(0).choice(n, _VARIOGRAM_POINTS, replace=False))
+    if n > _VARIOGRAM_POINTS:  # drawn over the checkpoints in order of position: any row order
+        by_position = np.lexsort((xy[:, 1], xy[:, 0]))
+        pick = np.random.default_rng(0).choice(n, _VARIOGRAM_POINTS, replace=False)
+        sub = np.sort(by_position[pick])
     d = pdist(xy[sub])
     pos = d[d > 0]
     if pos.size < _MIN_PAIRS * 3:
