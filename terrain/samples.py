@@ -146,6 +146,10 @@ class ElevationSamples:
             duplicates="raise",
         )
 
+    def position_order(self) -> np.ndarray:
+        """Indices, shape (n,), that put the samples in order of easting, then northing."""
+        return np.lexsort((self.xy[:, 1], self.xy[:, 0]))
+
     def by_position(self) -> ElevationSamples:
         """The same samples in order of position: easting, then northing (both ascending).
 
@@ -155,7 +159,7 @@ class ElevationSamples:
         longer follows the samples' order"). Locations are unique after the duplicate policy,
         so the order is total. Returns ``self`` when the samples are already in that order.
         """
-        order = np.lexsort((self.xy[:, 1], self.xy[:, 0]))
+        order = self.position_order()
         if np.array_equal(order, np.arange(self.n)):
             return self
         ordered = self.subset(order)

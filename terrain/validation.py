@@ -61,6 +61,7 @@ from .heldout_weights import (
     neighbour_distances,
     neighbourhood_weights,
 )
+from .json_safe import json_safe
 from .long_halo import long_halo_tiles
 from .metrics import calibration_curve, interval_coverage, nlpd, rmse, standardized_error_stats
 from .samples import ElevationSamples
@@ -160,17 +161,19 @@ class CrossValidation:
         return json_safe(out)
 
 
-def json_safe(obj: Any) -> Any:
-    """JSON-ready copy: numpy scalars and arrays to Python, dict keys to str, NaN/inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple | np.ndarray):
-        return [json_safe(v) for v in (obj.tolist() if isinstance(obj, np.ndarray) else obj)]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
+def _masks_in_order(extra_variance: Callable, order: np.ndarray) -> Callable:
+    """``extra_variance`` called with its training mask and held-out rows in the caller's
+    order of rows (``order``: the caller's row of each row here)."""
+
+    def in_order(train: np.ndarray, xy: np.ndarray, var_f: np.ndarray) -> np.ndarray:
+        mask = np.empty_like(train)
+        mask[order] = train
+        rows = np.argsort(order[~train])  # the held-out rows as the caller has them
+        var = np.empty(rows.size)
+        var[rows] = extra_variance(mask, xy[rows], var_f[rows])
+        return var
+
+    return in_order
 
 
 def spatial_blocks(
@@ -351,6 +354,10 @@ def cross_validate(
     if refit not in REFIT_MODES:
         raise bad_input("refit", refit, '"hyperparameters-fixed" or "all"', "pick one")
 
+    order = samples.position_order()  # sums and draws in one order: any row order, same bits
+    samples = samples.by_position()
+    if extra_variance is not None:  # its training mask in the caller's order of rows
+        extra_variance = _masks_in_order(extra_variance, order)
     reference = estimator
     if refit == REFIT_MODES[0] and not is_fitted(estimator):
         reference = clone(estimator).fit(samples)
@@ -471,6 +478,8 @@ def cross_validate(
     pooled["map_beyond_reach"] = float(np.mean(target_d > pooled["heldout_reach_m"]))
     levels, observed = calibration_curve(mu, sd, samples.z)
     pooled["calibration"] = {"levels": levels.tolist(), "observed": observed.tolist()}
+    back = np.argsort(order)  # the caller's row i is row back[i] here
+    fold, block, mu, sd = (a[back] for a in (fold, block, mu, sd))
     for a in (fold, block, mu, sd):
         a.setflags(write=False)
     return CrossValidation(

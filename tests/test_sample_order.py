@@ -12,7 +12,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from terrain import ElevationSamples, Grid, RasterMean, TerrainGP, coarse_dem, random_terrain
+from terrain import (
+    ElevationSamples,
+    Grid,
+    RasterMean,
+    TerrainGP,
+    coarse_dem,
+    cross_validate,
+    random_terrain,
+)
 from terrain.sampling import sample_dem
 
 GRID = Grid(0.0, 400.0, 4.0, (100, 100), crs="EPSG:32608")
@@ -77,3 +85,30 @@ def test_the_same_survey_in_another_row_order_gives_the_same_map(n, kwargs):
     assert k0 == k1 and n0 == n1
     np.testing.assert_array_equal(mu0, mu1)
     np.testing.assert_array_equal(sd0, sd1)
+
+
+def test_the_held_out_check_is_the_same_in_any_row_order():
+    samples = _survey(800)
+    shuffled = _shuffled(samples, 11)
+    gp = TerrainGP(seed=0).fit(samples)
+    seen = []
+
+    def extra(caller):
+        def variance(train, xy, var_f):
+            # the mask is in the caller's rows: the held-out positions are not among them
+            held = {tuple(p) for p in xy}
+            assert not held & {tuple(p) for p in caller.xy[train]}
+            assert len(held) + train.sum() == caller.n
+            seen.append(train.sum())
+            return np.full(len(xy), 0.01)
+
+        return variance
+
+    a = cross_validate(gp, samples, seed=0, extra_variance=extra(samples))
+    b = cross_validate(gp, shuffled, seed=0, extra_variance=extra(shuffled))
+    assert len(seen) == 2 * a.n_folds
+    assert a.to_dict() == b.to_dict()  # every pooled and per-fold number, to the bit
+    # per-sample results follow the caller's rows
+    back = np.argsort(shuffled.extra["t_s"])
+    for name in ("fold", "block", "prediction", "predictive_sd"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name)[back])

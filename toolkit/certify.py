@@ -28,9 +28,9 @@ from survey import standards
 from terrain.atomic import atomic_path
 from terrain.dem_projection import in_metres
 from terrain.errors import InputError, bad_input
+from terrain.json_safe import json_safe as _clean
 from terrain.metrics import interval_coverage, standardized_error_stats
 from terrain.validation import CrossValidation
-from terrain.validation import json_safe as _clean
 
 from .breakline_record import breakline_block
 from .certify_bias import bias_assessment

@@ -13,8 +13,8 @@ from typing import Any
 
 from terrain.errors import bad_input
 from terrain.heldout_verdict import coverage_verdict
+from terrain.json_safe import json_safe as _clean
 from terrain.validation import CrossValidation
-from terrain.validation import json_safe as _clean
 
 __all__ = ["heldout_block"]
 
