@@ -29,7 +29,7 @@ from .gp_hyper import HyperparameterMixin
 from .gp_mean import bind_mean, gls_subset, n_coef
 from .gp_settings import check_samples, check_settings
 from .grid import Grid, check_same_crs
-from .kernel_search import candidate_names, median_spacing, select_kernel, warn_if_degenerate
+from .kernel_search import median_spacing, warn_if_degenerate
 from .kernels import Kernel
 from .linalg import cholesky_jitter, single_blas_thread
 from .long_halo import predict_long_halo
@@ -243,6 +243,7 @@ class TerrainGP(HyperparameterMixin):
         self.fit_index_ = np.arange(samples.n)
         self.optimizer_runs_ = []
         self.kernel_scores_ = []
+        self.noise_estimate_ = None  # set where no sample states its noise (gp_hyper.py)
         self.window_plan_ = None
         self.anisotropy_evidence_ = None
         if self.optimize and self.max_fit_samples is not None and samples.n > self.max_fit_samples:
@@ -262,23 +263,7 @@ class TerrainGP(HyperparameterMixin):
                 X, windows, widest, spacing = self._fit_geometry(
                     samples, resid, windows, nugget, (widest, spacing), rng.spawn(1)[0]
                 )
-            choice = select_kernel(
-                X[idx],
-                resid[idx],
-                self.z_var_[idx],
-                candidate_names(self.kernel),
-                fit_nugget=self.fit_nugget,
-                nugget=nugget,
-                nugget_bounds=self.nugget_bounds,
-                spacing=spacing,
-                widest_gap=widest,
-                windows=windows,
-                rng=rng,
-            )
-            kernel, nugget = choice.kernel, choice.nugget
-            self.kernel_scores_ = choice.scores
-            self.kernel_name_ = choice.name
-            self._vecchia_lml = next(r for r in choice.scores if r["selected"]).get("refined_lml")
+            kernel, nugget = self._search_kernel(X, resid, windows, nugget, widest, spacing, rng)
         else:
             given = self.kernel not in (None, "auto")
             kernel = self.kernel if given else self._default_kernel(X, resid)

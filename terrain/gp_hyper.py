@@ -7,17 +7,20 @@ geometric anisotropy it runs in, in :mod:`terrain.anisotropy`.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 from scipy.optimize import minimize
 from threadpoolctl import threadpool_limits
 
 from .anisotropy import select_anisotropy
 from .errors import NumericalError, bad_input
-from .kernel_search import median_spacing
+from .kernel_search import candidate_names, median_spacing, select_kernel
 from .kernels import Kernel, SquaredExponential
 from .likelihood import gaussian_lml
 from .linalg import one_blas_thread
 from .tiled import largest_gap
+from .unstated_noise import unstated_noise, window_noise
 
 __all__ = ["HyperparameterMixin"]
 
@@ -50,6 +53,43 @@ class HyperparameterMixin:
         windows = None if windows is None else windows.transformed(geometry.matrix())
         self.window_plan_ = windows
         return X, windows, largest_gap(X, matrix=geometry.matrix()), median_spacing(X)
+
+    def _search_kernel(self, X, resid, windows, nugget, widest, spacing, rng):
+        """The kernel family by evidence on the fit subset (:func:`terrain.kernel_search.
+        select_kernel`); where no sample states its noise, the nugget from the windows'
+        dense lags and the chosen family refitted with it held (:mod:`terrain.
+        unstated_noise`). Returns ``(kernel, nugget)``; sets the search's record."""
+        idx = self.fit_index_
+        search = partial(
+            select_kernel,
+            X[idx],
+            resid[idx],
+            self.z_var_[idx],
+            nugget_bounds=self.nugget_bounds,
+            spacing=spacing,
+            widest_gap=widest,
+        )
+        names = candidate_names(self.kernel)
+        choice = search(names, fit_nugget=self.fit_nugget, nugget=nugget, windows=windows, rng=rng)
+        self.kernel_scores_, self.kernel_name_ = choice.scores, choice.name
+        self.noise_estimate_ = None
+        if unstated_noise(self.z_var_, windows, self.fit_nugget):
+            lo, hi = self.nugget_bounds
+            hi = max(min(hi, float(np.var(resid[idx]))), 10.0 * lo)  # noise below the signal's
+            estimate = window_noise(windows, choice.kernel, (lo, hi))
+            first = (repr(choice.kernel), choice.nugget)
+            # the family refitted with the noise held: one candidate, nothing to rank
+            choice = search((choice.name,), fit_nugget=False, nugget=estimate["nugget"],
+                            windows=None, rng=rng.spawn(1)[0])  # fmt: skip
+            self.noise_estimate_ = {
+                "rule": "no sample states its noise: the nugget from the windows' evidence",
+                "subset_kernel": first[0],
+                "subset_nugget": first[1],
+                **estimate,
+            }
+        selected = next(r for r in choice.scores if r["selected"])
+        self._vecchia_lml = selected.get("refined_lml")
+        return choice.kernel, choice.nugget
 
     # -- hyperparameter vector: log([kernel params..., nugget]) -----------------------------
     def _theta(self, kernel: Kernel, nugget: float) -> np.ndarray:

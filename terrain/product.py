@@ -109,6 +109,10 @@ def gp_provenance(gp: Any) -> dict[str, Any]:
         "jitter": gp.jitter_,
         "kernel_selection": json.dumps(json_rows(gp.kernel_scores_)),
         "kernel_windows": "none" if wp is None else wp.describe(),
+        # noise no sample states, from the windows' evidence ("" where it was not needed)
+        "noise_estimate": json.dumps(json_rows([gp.noise_estimate_])[0])
+        if getattr(gp, "noise_estimate_", None)
+        else "",
         "mean_coefficients": json.dumps(mean_coefficients(gp.mean_)),
         # the lines of a BreaklineMean and their widths ("" without): a GeoJSON Feature
         "breaklines": _breaklines_text(gp.mean_),

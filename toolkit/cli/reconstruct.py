@@ -350,11 +350,14 @@ def _reconstruct_csv(
 
         for note in step_notes(rec.gp.mean_):
             console.print(f"breaklines: {escape(note)}")
+    said = set()  # each once: the held-out check's folds refit and warn again
     for w in caught:
-        if issubclass(w.category, DegenerateFitWarning):
+        if issubclass(w.category, DegenerateFitWarning) and str(w.message) not in said:
+            said.add(str(w.message))
             console.print(f"[yellow]warning (degenerate fit):[/] {escape(str(w.message))}")
-        elif issubclass(w.category, TilingWarning):  # was recorded, never shown
-            console.print(f"[yellow]warning (tiles):[/] {escape(str(w.message))}")
+    if any(issubclass(w.category, TilingWarning) for w in caught) and rec.gp.tiling_note_:
+        # the map's own (recorded in the product); the folds' tiles differ by design
+        console.print(f"[yellow]warning (tiles):[/] {escape(rec.gp.tiling_note_)}")
     reverted = _reverted_fraction(rec)
     if reverted > 0.5 and prior is not None:  # by design: the DEM fills the gaps
         console.print(
@@ -413,6 +416,11 @@ def _reconstruct_csv(
     table_out.add_row("kernel (by evidence)", str(rec.product.attrs.get("kernel")))
     if not rec.gp.anisotropy_.isotropic:  # a grain given or chosen (--anisotropy)
         table_out.add_row("ground's grain", rec.gp.anisotropy_.describe())
+    noise = getattr(rec.gp, "noise_estimate_", None)
+    if noise:  # no sample stated its noise: the windows measured it (terrain/unstated_noise)
+        table_out.add_row(
+            "noise, stated by none (from dense windows)", f"{noise['nugget'] ** 0.5:.3g} m"
+        )
     table_out.add_row("mean", str(rec.product.attrs.get("mean_function")))
     table_out.add_row("cells reverting to the prior", f"{100 * reverted:.1f} %")
     if cert is not None:
