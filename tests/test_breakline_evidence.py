@@ -48,7 +48,7 @@ def fitted():
 
 def _refine(gp, samples, mean):
     nv = gp.z_var_ + gp.nugget_
-    return widths_by_evidence(mean, gp.kernel_, gp.X_train_, samples.xy, samples.z, nv)
+    return widths_by_evidence(mean, gp.kernel_, gp.X_train_, gp.samples_.xy, gp.samples_.z, nv)
 
 
 def test_the_map_takes_the_grounds_width_and_step(fitted):
@@ -71,7 +71,7 @@ def test_a_start_far_off_comes_back_and_the_misfit_falls(fitted):
     assert L is not None and refined is not start
     assert refined.widths_[0] == pytest.approx(gp.mean_.widths_[0], abs=0.15)
     nv = gp.z_var_ + gp.nugget_
-    args = (gp.kernel_, gp.X_train_, samples.xy, samples.z, nv, L)
+    args = (gp.kernel_, gp.X_train_, gp.samples_.xy, gp.samples_.z, nv, L)
     _, beta, _ = gls_mean(refined, *args)
     assert beta[refined.coef_names.index("step1_m")] == pytest.approx(HEIGHT, abs=0.3)
 
@@ -121,10 +121,10 @@ def test_the_steps_sigma_carries_the_widths(fitted):
     k = gp.mean_.coef_names.index("step1_m")
     step, sd = gp.mean_.coef_[k], np.sqrt(gp.mean_.coef_cov_[k, k])
     nv = gp.z_var_ + gp.nugget_
-    H = gp.mean_.basis(samples.xy)
+    H = gp.mean_.basis(gp.samples_.xy)
     from terrain.gp_mean import gls_coefficients
 
-    _, cov = gls_coefficients(gp.kernel_, gp.X_train_, samples.z, nv, H)
+    _, cov = gls_coefficients(gp.kernel_, gp.X_train_, gp.samples_.z, nv, H)
     assert sd > np.sqrt(cov[k, k]) * 1.05
     assert abs(step - HEIGHT) <= 2.0 * sd
     (w_sd,) = gp.mean_.widths_sd_

@@ -60,9 +60,13 @@ def test_cli_budget_has_the_along_track_terms(timed_epochs, tmp_path):
     for name, rec in zip(("before", "after"), recs, strict=True):
         g = gp_integral(rec.gp, grid, W)
         s = np.sqrt(ALONG_TRACK_FRACTION * rec.gp.z_var_)
-        var = along_track_quadratic(
-            g["sample_weights"], times[name], s, ALONG_TRACK_TAU_S, off_diagonal=True
-        )
+        # the fit's rows are in order of position (easting, then northing), not the file's
+        frame = pd.read_csv(timed / name / "samples.csv")
+        xy = frame.iloc[:, :2].to_numpy(float)
+        by_position = np.lexsort((xy[:, 1], xy[:, 0]))
+        np.testing.assert_allclose(xy[by_position], rec.gp.samples_.xy, rtol=0, atol=1e-6)
+        t = times[name][by_position][g["sample_index"]]
+        var = along_track_quadratic(g["sample_weights"], t, s, ALONG_TRACK_TAU_S, off_diagonal=True)
         assert var > 0
         assert vol["budget_m3"][f"along_track_{name}"] == pytest.approx(np.sqrt(var), rel=1e-6)
     assert vol["details"]["along_track"]["model"] == {
