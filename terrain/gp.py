@@ -137,6 +137,14 @@ class TerrainGP(HyperparameterMixin):
         subset's spacing (parts of ``kernel_``; averaged over its lengths and none by the
         left-out samples' window evidence: :func:`terrain.microscale.windowed_part`);
         ``None`` without one.
+    noise_estimate_ : dict or None
+        Where no sample states its noise: the nugget the dense windows measured, beside the
+        subset's (:mod:`terrain.unstated_noise`); ``None`` otherwise.
+    samples_ : ElevationSamples
+        The samples fitted, in order of position (easting, then northing); every per-sample
+        array of the fit (``alpha_``, :func:`terrain.gp_integral`'s weights) is in this order.
+    sample_order_ : ndarray of int, shape (n,)
+        The caller's row of each row of ``samples_`` (``samples.subset(sample_order_)``).
     mean_ : callable
         The fitted prior mean function.
     L_ : ndarray of shape (n, n)
@@ -223,6 +231,7 @@ class TerrainGP(HyperparameterMixin):
         t0 = time.perf_counter()
         # Every draw below is over the samples' indices: in order of position, the same
         # survey in any row order gives the same map (docs/terrain.md, session 46).
+        self.sample_order_ = samples.position_order()
         samples = samples.by_position()
         rng = np.random.default_rng(self.seed)
         mean = bind_mean(as_mean_function(self.mean), samples.crs, samples.xy)

@@ -79,6 +79,7 @@ def test_the_same_survey_in_another_row_order_gives_the_same_map(n, kwargs):
     for seed in (None, 7):
         s = samples if seed is None else _shuffled(samples, seed)
         gp = TerrainGP(seed=0, **kwargs).fit(s)
+        np.testing.assert_array_equal(s.xy[gp.sample_order_], gp.samples_.xy)  # the rows
         mu, sd = gp.predict(grid.xy(), return_std=True)
         maps.append((mu, sd, repr(gp.kernel_), gp.nugget_))
     (mu0, sd0, k0, n0), (mu1, sd1, k1, n1) = maps

@@ -228,7 +228,8 @@ def test_sample_weights_are_a_refit_with_perturbed_samples(fitted):
     gp2 = TerrainGP(kernel=gp.kernel_, optimize=False, nugget=1e-3, nugget_bounds="fixed")
     m1 = gp.predict(grid.xy()).reshape(grid.shape)
     m2 = gp2.fit(moved).predict(grid.xy()).reshape(grid.shape)
-    assert np.sum(w * (m2 - m1)) == pytest.approx(u @ d, rel=1e-6)
+    # u is over the fit's rows (in order of position): the caller's d taken in that order
+    assert np.sum(w * (m2 - m1)) == pytest.approx(u @ d[gp.sample_order_], rel=1e-6)
 
 
 def test_along_track_term_in_the_budget(fitted):
@@ -248,7 +249,7 @@ def test_along_track_term_in_the_budget(fitted):
     model = AlongTrackModel(fraction=0.8, tau_s=60.0)
     vc = volume_change(d, outline, models=(gpt, gpt), along_track=model)
     u = gp_integral(gpt, grid, outline_weights(grid, outline))["sample_weights"]
-    sd = np.sqrt(0.8 * s.z_var)
+    sd, t = np.sqrt(0.8 * s.z_var)[gpt.sample_order_], t[gpt.sample_order_]  # the fit's rows
     C = sd[:, None] * sd[None, :] * np.exp(-np.abs(t[:, None] - t[None, :]) / 60.0)
     ref = u @ (C - np.diag(np.diag(C))) @ u
     assert ref > 0
