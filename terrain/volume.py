@@ -125,8 +125,9 @@ def gp_integral(
         ``prior_m6`` (w^T K w), ``explained_m6`` (v^T (K+N)^-1 v), ``mean_coef_m6``,
         ``posterior_var_m6`` (their combination), ``offset_response_m2`` (u^T 1),
         ``sample_weights`` (u, shape (n,), m^2: the estimate of ``I`` is ``u^T z`` over the
-        GP's samples ``sample_index``, so an error ``e`` of the samples moves it by
-        ``u^T e``) and ``route`` (how the factor was obtained).
+        GP's samples ``sample_index`` — rows of ``gp.samples_``, in order of position;
+        ``gp.sample_order_`` names the caller's rows — so an error ``e`` of the samples moves
+        it by ``u^T e``) and ``route`` (how the factor was obtained).
     """
     X, L, Wb, cov_b, route, idx = _factor(gp, subset_max, seed)
     W = np.asarray(weights, float)
