@@ -6,12 +6,12 @@ keeps it white). The kernel search fits it on a fit subset of at most 2,000 samp
 that spacing: mapped from a DSM (a real DEM's 80-node site at 2 m, 0.05 m of noise, voids;
 ``benchmarks/dsm_voids.py``), the fitted nugget ranged 3.6e-6 to 2.4e-2 m² over the
 subset's draws for the true 2.5e-3 m², and the truth fell inside the cells' 68 % band on
-3-85 % of them (docs/terrain.md "Noise the samples do not state, from the dense windows").
+3-98 % of them (docs/terrain.md "Noise the samples do not state, from the dense windows").
 
 The samples the subset leaves out are scored in windows given the subset near them
 (:mod:`terrain.window_evidence`), at the lags the subset lacks. Their evidence, maximized
-over the nugget alone at the chosen kernel, put the noise at 1.5-3.4e-3 m² on every draw of
-four real sites. :func:`window_noise` is that estimate; :class:`terrain.TerrainGP` then
+over the nugget alone at the chosen kernel, put the noise at 1.3-3.9e-3 m² on all 16 draws
+of four real sites (the cells then 59-79 % in their 68 % band). :func:`window_noise` is that estimate; :class:`terrain.TerrainGP` then
 refits the chosen family on the subset with the nugget held there, so the kernel's short
 part no longer trades against it.
 """
