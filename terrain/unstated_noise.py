@@ -11,9 +11,9 @@ subset's draws for the true 2.5e-3 m², and the truth fell inside the cells' 68 
 The samples the subset leaves out are scored in windows given the subset near them
 (:mod:`terrain.window_evidence`), at the lags the subset lacks. Their evidence, maximized
 over the nugget alone at the chosen kernel, put the noise at 1.3-3.9e-3 m² on all 16 draws
-of four real sites (the cells then 59-79 % in their 68 % band). :func:`window_noise` is that estimate; :class:`terrain.TerrainGP` then
-refits the chosen family on the subset with the nugget held there, so the kernel's short
-part no longer trades against it.
+of four real sites (the cells then 59-79 % in their 68 % band). :func:`window_noise` is that
+estimate; :class:`terrain.TerrainGP` then refits the chosen family on the subset with the
+nugget held there, so the kernel's short part no longer trades against it.
 """
 
 from __future__ import annotations
