@@ -45,13 +45,13 @@ STANDING = (
     "real_terrain_tenwin_conditioned_windows_s32_10k.json",
     "real_terrain_tenwin_spread_windows_s33_50k.json",
     "real_terrain_newwin_s46_3k.json",
-    "real_terrain_newwin_s34_50k.json",
+    "real_terrain_newwin_s46_50k.json",
     "real_terrain_linear_s46_3k.json",
     "real_terrain_linear_s34_50k.json",
     "real_terrain_nodes80_s46_3k.json",
     "real_terrain_nodes80_s46_50k.json",
     "real_terrain_scattered2_s46_3k.json",
-    "real_terrain_scattered2_s34_50k.json",
+    "real_terrain_scattered2_s46_50k.json",
 )
 #: The prior mean of each glacimap method, as the misses name it.
 MEANS = {
