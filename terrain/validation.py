@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 from .along_track import ALONG_TRACK_FRACTION, ALONG_TRACK_TAU_S
 from .errors import bad_input, positive_number
 from .estimator_clone import clone, fixed_overrides, is_fitted
+from .fold_fit import fold_predictor
 from .heldout_design import (
     along_track_shared,
     default_targets,
@@ -62,17 +63,17 @@ from .heldout_weights import (
     neighbourhood_weights,
 )
 from .json_safe import json_safe
-from .long_halo import long_halo_tiles
 from .metrics import calibration_curve, interval_coverage, nlpd, rmse, standardized_error_stats
 from .samples import ElevationSamples
-from .tiled import tiles_reaching_gaps
 
 __all__ = [
     "CrossValidation",
     "coverage_verdict",
     "cross_validate",
+    "design_folds",
     "json_safe",
     "spatial_blocks",
+    "target_points",
 ]
 
 REFIT_MODES = ("hyperparameters-fixed", "all")
@@ -224,7 +225,44 @@ def spatial_blocks(
     return block_fold[inverse], inverse
 
 
-def _target_xy(targets: Any, xy: np.ndarray) -> np.ndarray:
+def design_folds(
+    xy: np.ndarray,
+    target_d: np.ndarray,
+    n_folds: int,
+    seed: int,
+    reference: Any,
+    block_size: float | None = None,
+) -> tuple[float, str, np.ndarray, np.ndarray]:
+    """The held-out blocks of :func:`cross_validate`: their side, its rule in words, and each
+    sample's fold and block.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (n, 2)
+        Sample locations, m.
+    target_d : ndarray of shape (m,)
+        Distance from each map cell to its nearest sample, m.
+    n_folds, seed : int
+        Folds, and the seed of the generator that deals the blocks.
+    reference : TerrainGP
+        A fit whose shortest length scale sets the side when no distance-matched side has
+        2 x ``n_folds`` blocks.
+    block_size : float, optional
+        A side given by the caller, m.
+    """
+    if block_size is None:
+        size, rule, fold, block = matched_block_size(xy, target_d, n_folds, seed, spatial_blocks)
+        if size is None:
+            size, rule = _default_block(reference, xy, n_folds)
+    else:
+        size = positive_number("block_size", block_size, "a block side in metres, e.g. 45.0")
+        rule = "given"
+    if rule == "given" or not rule.startswith("distance-matched"):
+        fold, block = spatial_blocks(xy, size, n_folds, np.random.default_rng(seed))
+    return float(size), rule, fold, block
+
+
+def target_points(targets: Any, xy: np.ndarray) -> np.ndarray:
     """The map's cell centres (m, 2) from ``targets`` (a Grid, an array or None)."""
     if targets is None:
         return default_targets(xy)
@@ -361,37 +399,23 @@ def cross_validate(
     reference = estimator
     if refit == REFIT_MODES[0] and not is_fitted(estimator):
         reference = clone(estimator).fit(samples)
-    target_xy = _target_xy(targets, samples.xy)
+    target_xy = target_points(targets, samples.xy)
     target_d = cKDTree(samples.xy).query(target_xy)[0]
-    size = None
-    if block_size is None:
-        size, rule, fold, block = matched_block_size(
-            samples.xy, target_d, n_folds, seed, spatial_blocks
-        )
-        if size is None:
-            size, rule = _default_block(reference, samples.xy, n_folds)
-    else:
-        size = positive_number("block_size", block_size, "a block side in metres, e.g. 45.0")
-        rule = "given"
-    if rule == "given" or not rule.startswith("distance-matched"):
-        fold, block = spatial_blocks(samples.xy, size, n_folds, np.random.default_rng(seed))
+    size, rule, fold, block = design_folds(
+        samples.xy, target_d, n_folds, seed, reference, block_size
+    )
     n_blocks = int(block.max()) + 1
     block_fold = np.empty(n_blocks, dtype=np.int64)
     block_fold[block] = fold
     blocks_per_fold = np.bincount(block_fold, minlength=n_folds)
 
-    overrides, hyper = {}, None
+    hyper = None
     if refit == REFIT_MODES[0]:
         overrides = fixed_overrides(reference)
         hyper = {k: overrides[k] for k in ("kernel", "nugget") if k in overrides} or None
         if hyper and "kernel" in hyper:
             hyper["kernel"] = repr(hyper["kernel"])
-    # an exact fit only because of a long kernel part (more samples than exact_max_samples):
-    # folds on tiles with that part's halo, as the map's 1-sigma (terrain/long_halo.py)
-    long_tiles = None
-    if overrides and getattr(reference, "method_", None) == "exact":
-        if samples.n > getattr(reference, "exact_max_samples", math.inf):
-            long_tiles = long_halo_tiles(reference)
+    fit_predict = fold_predictor(estimator, reference, samples.n, refit == REFIT_MODES[0])
     mu = np.empty(samples.n)
     prior = np.zeros(samples.n)  # each fold's prior mean at its held-out samples, m
     sd = np.empty(samples.n)
@@ -400,25 +424,7 @@ def cross_validate(
     rows = []
     for k in range(n_folds):
         test = fold == k
-        fold_overrides = overrides
-        tiled = getattr(reference, "method_", None) == "tiled"
-        if overrides and tiled and getattr(estimator, "tiles", None) is None:
-            # The map's kernel on tiles that reach across the fold's own held-out gaps: the
-            # check is of the map, which has no such gaps (docs/terrain.md "Folds' tiles").
-            geometry = reference.anisotropy_  # the fold's samples in the kernel's space
-            fold_xy = geometry.apply(samples.xy[~test])
-            fold_tiles = tiles_reaching_gaps(reference.kernel_, fold_xy, geometry.kernel_matrix)
-            if reference.tiles_.far_share:  # the map's spread halo (terrain/long_halo.py)
-                fold_tiles = reference.tiles_
-            fold_overrides = {**overrides, "tiles": fold_tiles}
-        elif overrides and long_tiles is not None:  # terrain/long_halo.py: no n^3 per fold
-            fold_overrides = {**overrides, "method": "tiled", "tiles": long_tiles}
-            fold_overrides["local_amplitude"] = False
-        model = clone(estimator, **fold_overrides).fit(samples.subset(~test))
-        m, s = model.predict(samples.xy[test], return_std=True)
-        if (getattr(model, "tile_stats_", None) or {}).get("tiles_capped") and long_tiles:
-            model = clone(estimator, **overrides).fit(samples.subset(~test))  # exact, then
-            m, s = model.predict(samples.xy[test], return_std=True)
+        model, m, s = fit_predict(samples.subset(~test), samples.xy[test])
         mu[test] = m
         if callable(getattr(model, "mean_", None)):
             prior[test] = model.mean_(samples.xy[test])
