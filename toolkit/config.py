@@ -199,8 +199,8 @@ def _check(user: dict[str, Any], ref: dict[str, Any], where: tuple[str, ...]) ->
             pass  # metres or "auto": toolkit.breaklines_io.scenario_breaklines
         elif (*where, key) == ("prior", "coarse") and value not in ("mesh", "area-means"):
             raise bad_input(path, value, '"mesh" or "area-means"', 'coarse = "mesh"')
-        elif (*where, key) == ("prior", "as") and value not in ("mean", "data"):
-            raise bad_input(path, value, '"mean" or "data"', 'as = "data"')
+        elif (*where, key) == ("prior", "as") and value not in ("mean", "data", "auto"):
+            raise bad_input(path, value, '"mean", "data" or "auto"', 'as = "auto"')
         elif isinstance(value, dict):
             _check(value, ref.get(key, {}) if isinstance(ref.get(key), dict) else {}, (*where, key))
         elif key in ref and not isinstance(ref[key], dict):

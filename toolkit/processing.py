@@ -27,10 +27,11 @@ from terrain import RasterMean
 from terrain.atomic import atomic_path
 from terrain.errors import InputError, bad_input
 
-from .breaklines_io import is_search, scenario_lines, with_breaklines
+from .breaklines_io import is_search, read_breaklines, scenario_lines, with_breaklines
 from .certify import require_checkpoints_on
 from .config import load_scenario
 from .export._files import output_folder, previous_products, remove_stale, staged_folder
+from .prior_reading import choose_reading, prior_reading, reading_record
 from .provenance import input_record, split_timings
 from .stages import (
     certify_stage,
@@ -41,7 +42,7 @@ from .stages import (
     select_stage,
 )
 
-__all__ = ["PROCESS_STAGES", "ProcessResult", "ingest", "prior_as_data", "prior_mean", "process"]
+__all__ = ["PROCESS_STAGES", "ProcessResult", "ingest", "prior_mean", "process"]
 
 PROCESS_STAGES = ("ingest", "localize", "select", "reconstruct", "certify", "export")
 
@@ -183,21 +184,6 @@ def prior_mean(prior: Any, settings: dict[str, Any]) -> Any:
     return _named_by_file(mean)
 
 
-def prior_as_data(prior: Any, settings: dict[str, Any], given: str | None = None) -> bool:
-    """Whether the prior DEM is read as data (its cells as samples, :func:`terrain.
-    dem_as_data.dem_as_data`) rather than as the mean: ``given`` (``--prior-as``) or the
-    ``[prior] as`` setting. Reading it as data without a DEM is an :class:`InputError`."""
-    field = "--prior-as" if given is not None else "[prior] as"
-    value = given if given is not None else settings.get("prior", {}).get("as", "mean")
-    if value not in ("mean", "data"):
-        raise bad_input(field, value, '"mean" or "data"', "e.g. --prior-as data")
-    if value == "data" and prior is None:
-        raise bad_input(
-            field, value, "a prior DEM to read as data", "pass --prior DEM.tif, or read it as mean"
-        )
-    return value == "data"
-
-
 def _named_by_file(mean: RasterMean) -> RasterMean:
     """Label a file-backed RasterMean by its file name: provenance names the file, not where
     it was read, so the products' bytes do not depend on the folder (toolkit.provenance);
@@ -336,10 +322,8 @@ def _process(
         # a step across each breakline (a vector file, read in the map's CRS, or vertices)
         # (``auto``: found in the selected samples, below)
         search = is_search(breaklines[0])
-        as_data = prior_as_data(prior, settings)  # the DEM's cells as samples (below)
-        mean = "constant" if as_data else prior_mean(prior, settings)
-        if not search:
-            mean = with_breaklines(mean, *breaklines, crs=mlog.crs)
+        reading = prior_reading(prior, settings)  # mean, data (its cells as samples) or auto
+        dem_mean = None if reading == "data" else prior_mean(prior, settings)
         # which files made the map, by name and SHA-256 (every product's metadata)
         log_record = None if isinstance(log, MeasurementLog) else input_record("log", log)
         prior_record = input_record("prior", prior)
@@ -354,6 +338,9 @@ def _process(
             )
             if r is not None
         ]
+        if not search and _file_or_none(breaklines[0]) is not None:  # read now: fails fast
+            read = read_breaklines(Path(breaklines[0]), mlog.crs)
+            breaklines = (read, *breaklines[1:])
     with stage("localize"):
         loc = localize_stage(mlog, settings, control=ctrl, progress=on_progress)
     with stage("select"):
@@ -369,10 +356,17 @@ def _process(
             require_checkpoints_on(cps, grid)
         folds = int(settings["certify"]["heldout_folds"])
         found: list[str] = []
+        choice = None
+        if reading == "auto":  # the reading the held-out landmarks map better (no steps)
+            choice = choose_reading(prior, dem_mean, sel.samples, grid, settings, seed)
+            reading = choice.choice
+        mean = "constant" if reading == "data" else dem_mean
         if search:  # steps found in the selected samples (terrain.find_breaklines)
             mean = with_breaklines(mean, *breaklines, notes=found, samples=sel.samples)
+        else:  # the vector file's steps (read at ingest) or given vertices, map's CRS
+            mean = with_breaklines(mean, *breaklines, crs=mlog.crs)
         samples, dem_note = sel.samples, None
-        if as_data:  # co-kriged with the survey (terrain/dem_as_data.py)
+        if reading == "data":  # co-kriged with the survey (terrain/dem_as_data.py)
             from terrain.dem_as_data import dem_as_data
 
             dem = prior.source if isinstance(prior, RasterMean) else prior
@@ -380,6 +374,8 @@ def _process(
         rec = reconstruct_selection(sel, grid, mean, settings, seed, folds, samples=samples)
         if dem_note is not None:
             rec.product.attrs["prior_as_data"] = dem_note.note()
+        if choice is not None:
+            rec.product.attrs["prior_reading"] = reading_record(choice)
         rec.product.attrs["inputs"] = json.dumps(
             [{k: r[k] for k in ("role", "name", "sha256")} for r in files]
         )

@@ -32,6 +32,7 @@ __all__ = [
     "certify_stage",
     "localization_summary",
     "localize_stage",
+    "map_estimator",
     "map_grid",
     "reconstruct_selection",
     "reconstruct_stage",
@@ -132,6 +133,24 @@ class Reconstruction:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+def map_estimator(mean: Any, grid: Grid, settings: dict[str, Any], seed: int) -> TerrainGP:
+    """The map's GP, unfitted: ``mean`` (a :class:`terrain.RasterMean` bound to ``grid``:
+    its coarse cells cover the map, not the samples) and the ``[reconstruct]`` settings
+    (``method``, ``max_fit_samples``, ``n_restarts``, ``anisotropy``); the kernel by
+    evidence (the terrain layer's default: the family member with the best BIC)."""
+    rc = settings["reconstruct"]
+    if hasattr(mean, "for_grid"):
+        mean.for_grid(grid)
+    return TerrainGP(
+        mean=mean,
+        method=rc["method"],
+        max_fit_samples=int(rc["max_fit_samples"]),
+        n_restarts=int(rc["n_restarts"]),
+        anisotropy=anisotropy_option(rc["anisotropy"]),
+        seed=seed,
+    )
+
+
 def reconstruct_stage(
     samples: ElevationSamples,
     grid: Grid,
@@ -186,18 +205,9 @@ def reconstruct_stage(
         offset) and ``elevation_std_relative`` (the map's own: without the shared offset, so
         data gaps show), all in metres.
     """
-    rc = settings["reconstruct"]
-    if hasattr(mean, "for_grid"):  # a RasterMean's coarse cells cover the map, not the samples
-        mean.for_grid(grid)
-    prior_note = prior_coarsening_note(mean)
-    gp = TerrainGP(
-        mean=mean,  # kernel="auto": the family member with the best evidence (BIC)
-        method=rc["method"],
-        max_fit_samples=int(rc["max_fit_samples"]),
-        n_restarts=int(rc["n_restarts"]),
-        anisotropy=anisotropy_option(rc["anisotropy"]),
-        seed=seed,
-    ).fit(samples)
+    gp = map_estimator(mean, grid, settings, seed)
+    prior_note = prior_coarsening_note(gp.mean)
+    gp.fit(samples)
     if landmark_xy is None:
         landmark_xy = samples.xy
         if landmark_rel_z_std is None:
@@ -354,6 +364,8 @@ def certify_stage(
     }
     if product.attrs.get("prior_as_data"):  # the DEM's cells were samples, not the mean
         cert["reconstruction"]["prior_as_data"] = product.attrs["prior_as_data"]
+    if product.attrs.get("prior_reading"):  # --prior-as auto: the choice and its scores
+        cert["reconstruction"]["prior_reading"] = json.loads(product.attrs["prior_reading"])
     return cert
 
 

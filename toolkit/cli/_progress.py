@@ -203,6 +203,14 @@ def certificate_rows(table: Table, cert: dict[str, Any]) -> None:
     as_data = (cert.get("reconstruction") or {}).get("prior_as_data")
     if as_data:  # the DEM's cells were samples: how many, their offset and 1-sigma
         table.add_row("prior DEM", as_data.removeprefix("prior DEM as data: "))
+    chosen = (cert.get("reconstruction") or {}).get("prior_reading")
+    if chosen:  # --prior-as auto: which reading, by which held-out RMSEs
+        scores = chosen["scores"]
+        table.add_row(
+            "prior DEM read as (auto)",
+            f"{chosen['choice']}: held-out RMSE {scores['mean']['heldout_rmse_m']:.3f} m as "
+            f"mean, {scores['data']['heldout_rmse_m']:.3f} m as data",
+        )
     ci = cert.get("contour_interval", {})
     if ci.get("certified_m"):
         table.add_row("contour interval (m)", f"{ci['certified_m']:g}")

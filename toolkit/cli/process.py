@@ -54,20 +54,22 @@ def process_command(
         str | None,
         typer.Option(
             "--prior-as",
-            help='How --prior is read: "mean" (a + b * DEM) or "data" (its cells as samples '
-            "with their own 1-sigma, measured on the survey). Default: [prior] as.",
+            help='How --prior is read: "mean" (a + b * DEM), "data" (its cells as samples '
+            'with their own 1-sigma, measured on the survey) or "auto" (whichever maps the '
+            "survey's held-out samples better). Default: [prior] as.",
         ),
     ] = None,
 ) -> None:
     """Ingest -> localize -> select -> reconstruct -> certify -> export -> report."""
     from toolkit.config import load_scenario
-    from toolkit.processing import PROCESS_STAGES, prior_as_data, process
+    from toolkit.prior_reading import prior_reading
+    from toolkit.processing import PROCESS_STAGES, process
 
     console = Console()
     settings = load_scenario(config)  # bad settings fail before any work
     if prior_as is not None:  # --prior-as over the settings' [prior] as
         settings["prior"]["as"] = prior_as
-    prior_as_data(prior, settings, prior_as)  # "data" without --prior fails here too
+    prior_reading(prior, settings, prior_as)  # "data" without --prior fails here too
     if breaklines is not None:  # a bad file fails before any work too
         from toolkit.breaklines_io import check_breakline_options
 

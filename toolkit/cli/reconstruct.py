@@ -164,9 +164,10 @@ def reconstruct(
         str | None,
         typer.Option(
             "--prior-as",
-            help='How --prior is read: "mean" (a + b * DEM, the default) or "data" (its '
+            help='How --prior is read: "mean" (a + b * DEM, the default), "data" (its '
             "cells as samples with their own 1-sigma, measured on the survey: for a DEM "
-            "noisier than the survey's interpolation). Default: --config's [prior] as.",
+            'noisier than the survey\'s interpolation) or "auto" (whichever maps the '
+            "survey's held-out samples better). Default: --config's [prior] as.",
         ),
     ] = None,
 ) -> None:
@@ -196,9 +197,9 @@ def reconstruct(
 
         gnss_heights = height_datum_option(gnss_heights, "--gnss-heights", allow_auto=True)
     if prior_as is not None:  # before anything is read: a bad value fails in milliseconds
-        from ..processing import prior_as_data
+        from ..prior_reading import prior_reading
 
-        prior_as_data(prior, {}, prior_as)
+        prior_reading(prior, {}, prior_as)
     if horizontal_sd is not None:  # before the fit: a bad value fails in milliseconds
         from terrain.errors import positive_number
 
@@ -278,7 +279,8 @@ def _reconstruct_csv(
     from ..config import load_scenario
     from ..export._files import previous_products, remove_stale, staged_folder
     from ..grid_like import grid_like
-    from ..processing import prior_as_data, prior_mean
+    from ..prior_reading import choose_reading, prior_reading, reading_record
+    from ..processing import prior_mean
     from ..products import write_csv, write_map_products
     from ..provenance import input_record
     from ..samples_io import read_sample_files, sample_columns, samples_height_attrs
@@ -311,15 +313,20 @@ def _reconstruct_csv(
     footprint = _footprint_note(data, grid)
     if footprint:  # said before the fit: a big map of few samples is long to wait for
         console.print(f"[yellow]warning:[/] {escape(str(footprint))}")
-    survey, as_data = data, None
-    if prior_as_data(prior, settings, prior_as):  # its cells as samples (dem_as_data.py)
+    survey, as_data, choice = data, None, None
+    reading = prior_reading(prior, settings, prior_as)
+    mean = "constant" if reading == "data" else prior_mean(prior, settings)
+    if reading == "auto":  # the reading the survey's held-out samples map better
+        with console.status("choosing how the prior DEM is read (held-out samples)..."):
+            choice = choose_reading(prior, mean, survey, grid, settings, seed)
+        console.print(f"[yellow]note:[/] {escape(choice.note())}")
+        reading = choice.choice
+        mean = "constant" if reading == "data" else mean
+    if reading == "data":  # its cells as samples (dem_as_data.py)
         from terrain.dem_as_data import dem_as_data
 
         data, as_data = dem_as_data(prior, survey, grid.bounds)
-        mean = "constant"
         console.print(f"[yellow]note:[/] {escape(as_data.note())}")
-    else:
-        mean = prior_mean(prior, settings)
     if lines is not None:  # a step across each breakline, read now in the map's CRS
         from ..breaklines_io import with_breaklines
 
@@ -374,6 +381,8 @@ def _reconstruct_csv(
     rec.product.attrs.update(heights)  # a CSV's datum, or that it is not stated
     if as_data is not None:
         rec.product.attrs["prior_as_data"] = as_data.note()
+    if choice is not None:
+        rec.product.attrs["prior_reading"] = reading_record(choice)
     if lines is not None and searched:  # what the search found and dropped, with the map
         rec.product.attrs["breakline_search"] = searched
     # which files made the map, by name and SHA-256 (every product's metadata)
