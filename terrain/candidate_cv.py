@@ -32,7 +32,7 @@ def cv_folds(
     Returns each sample's fold (n,) and the block side, m (halved until there are at least
     two blocks per fold). ``gap`` None: measured from ``X``'s bounding box.
     """
-    from .validation import spatial_blocks
+    from .heldout_blocks import spatial_blocks
 
     if gap is None:
         lo, hi = X.min(axis=0), X.max(axis=0)

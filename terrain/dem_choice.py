@@ -42,7 +42,7 @@ from .estimator_clone import clone
 from .fold_fit import fold_predictor
 from .metrics import interval_coverage, nlpd, rmse
 from .samples import ElevationSamples
-from .validation import design_folds, target_points
+from .heldout_blocks import design_folds, target_points
 
 __all__ = ["READINGS", "DemReading", "choose_dem_reading"]
 

@@ -165,7 +165,7 @@ def matched_block_size(
         ``deal`` gives for that side and seed).
     deal : callable
         ``deal(xy, size, n_folds, rng) -> (fold, block)``
-        (:func:`terrain.validation.spatial_blocks`).
+        (:func:`terrain.heldout_blocks.spatial_blocks`).
 
     Returns
     -------
