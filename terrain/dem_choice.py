@@ -40,9 +40,9 @@ from .dem_as_data import dem_as_data
 from .errors import bad_input
 from .estimator_clone import clone
 from .fold_fit import fold_predictor
+from .heldout_blocks import design_folds, target_points
 from .metrics import interval_coverage, nlpd, rmse
 from .samples import ElevationSamples
-from .heldout_blocks import design_folds, target_points
 
 __all__ = ["READINGS", "DemReading", "choose_dem_reading"]
 
