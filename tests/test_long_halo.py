@@ -101,7 +101,7 @@ def test_cross_validation_folds_use_the_long_halo_tiles(monkeypatch):
     # An exact fit beyond exact_max_samples (kept exact by its long part): the folds go on
     # tiles with the long part's halo instead of a Cholesky each. Reference: the same check
     # with exact folds; measured on a GNSS walk 36.7 -> 5.0 s, 73.8 -> 73.7 % at 68.
-    import terrain.validation as val
+    import terrain.fold_fit as val
     from terrain import cross_validate
 
     s = _lines()
