@@ -47,6 +47,8 @@ bench: setup
 	$(BIN)/python benchmarks/breakline_steps.py --out benchmarks/results/breakline_steps.json
 	$(BIN)/python benchmarks/real_contours.py --out benchmarks/results/real_contours.json
 	$(BIN)/python benchmarks/profile_prior.py --out benchmarks/results/profile_prior.json
+	$(BIN)/python benchmarks/profile_prior.py --dem-error smooth --out benchmarks/results/profile_prior_smooth.json
+	$(BIN)/python benchmarks/profile_prior.py --dem-error coarse --out benchmarks/results/profile_prior_coarse.json
 	$(BIN)/python benchmarks/gnss_heights.py --out benchmarks/results/gnss_heights.json
 	$(BIN)/python benchmarks/point_cloud.py --out benchmarks/results/point_cloud.json
 	$(BIN)/python benchmarks/dsm_voids.py --out benchmarks/results/dsm_voids.json
