@@ -153,6 +153,12 @@ def case(name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
     rows.append({**chosen, "method": "dem_auto", "reading": pick.choice,
                  "heldout_rmse_mean_m": pick.scores["mean"]["heldout_rmse_m"],
                  "heldout_rmse_data_m": pick.scores["data"]["heldout_rmse_m"],
+                 "fold_rmse_mean_m": pick.scores["mean"]["fold_rmse_m"],
+                 "fold_rmse_data_m": pick.scores["data"]["fold_rmse_m"],
+                 "matched_rmse_mean_m": pick.scores["mean"]["heldout_rmse_matched_m"],
+                 "matched_rmse_data_m": pick.scores["data"]["heldout_rmse_matched_m"],
+                 "fold_matched_mean_m": pick.scores["mean"]["fold_rmse_matched_m"],
+                 "fold_matched_data_m": pick.scores["data"]["fold_rmse_matched_m"],
                  "choice_s": time.perf_counter() - t0})  # fmt: skip
     print(f"{name} dem_auto: {pick.note()}", flush=True)
     return rows

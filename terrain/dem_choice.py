@@ -42,6 +42,7 @@ from .errors import bad_input
 from .estimator_clone import clone
 from .fold_fit import fold_predictor
 from .heldout_blocks import design_folds, target_points
+from .heldout_design import distance_weights, heldout_distances
 from .metrics import interval_coverage, nlpd, rmse
 from .samples import ElevationSamples
 
@@ -63,7 +64,10 @@ class DemReading:
         Per reading: ``heldout_rmse_m`` (m), ``heldout_nlpd`` (nats per sample, Gaussian
         with the fold's latent variance + nugget + the sample's stated variance),
         ``heldout_coverage_68`` / ``_95`` (fractions of held-out samples in those bands),
-        ``fold_rmse_m`` (per fold, m) and ``kernel`` (the reading's fitted kernel).
+        ``fold_rmse_m`` (per fold, m), ``heldout_rmse_matched_m`` and
+        ``fold_rmse_matched_m`` (the same with the held-out samples weighted to the map
+        cells' distances from the survey, :func:`terrain.heldout_design.distance_weights`)
+        and ``kernel`` (the reading's fitted kernel).
     n_heldout : int
         Survey samples scored (each once).
     n_folds : int
@@ -151,13 +155,15 @@ def choose_dem_reading(
     references = {"mean": clone(as_mean).fit(samples), "data": clone(as_data).fit(with_dem)}
     target_d = cKDTree(samples.xy).query(target_points(targets, samples.xy))[0]
     size, rule, fold, _ = design_folds(samples.xy, target_d, n_folds, seed, references["mean"])
+    # the held-out samples weighted to the map cells' distances from the survey
+    weight = distance_weights(heldout_distances(samples.xy, fold), target_d)
     estimators = {"mean": as_mean, "data": as_data}
     scores: dict[str, dict[str, Any]] = {}
     for reading in READINGS:
         reference = references[reading]
         n_fitted = samples.n if reading == "mean" else with_dem.n
         fit_predict = fold_predictor(estimators[reading], reference, n_fitted)
-        mu, sd, fold_rmse = np.empty(samples.n), np.empty(samples.n), []
+        mu, sd, fold_rmse, fold_matched = np.empty(samples.n), np.empty(samples.n), [], []
         for k in range(n_folds):
             test = fold == k
             train = samples.subset(~test)
@@ -168,12 +174,15 @@ def choose_dem_reading(
             noise = float(getattr(model, "nugget_", 0.0)) + samples.z_var[test]
             sd[test] = np.sqrt(np.asarray(s, dtype=float) ** 2 + noise)
             fold_rmse.append(rmse(m, samples.z[test]))
+            fold_matched.append(_weighted_rmse(m - samples.z[test], weight[test]))
         scores[reading] = {
             "heldout_rmse_m": rmse(mu, samples.z),
             "heldout_nlpd": nlpd(mu, sd, samples.z),
             "heldout_coverage_68": interval_coverage(mu, sd, samples.z, 1.0),
             "heldout_coverage_95": interval_coverage(mu, sd, samples.z, 1.96),
             "fold_rmse_m": [float(r) for r in fold_rmse],
+            "heldout_rmse_matched_m": _weighted_rmse(mu - samples.z, weight),
+            "fold_rmse_matched_m": fold_matched,
             "kernel": repr(reference.kernel_),
         }
     return DemReading(
@@ -193,3 +202,9 @@ def _data_wins(scores: dict[str, dict[str, Any]], n_folds: int) -> bool:
     data, mean = scores["data"], scores["mean"]
     folds = sum(d < m for d, m in zip(data["fold_rmse_m"], mean["fold_rmse_m"], strict=True))
     return data["heldout_rmse_m"] < mean["heldout_rmse_m"] and 2 * folds > n_folds
+
+
+def _weighted_rmse(err: np.ndarray, weight: np.ndarray) -> float:
+    """RMSE with each error weighted (m); NaN when every weight is 0."""
+    total = float(np.sum(weight))
+    return float(np.sqrt(np.sum(weight * err**2) / total)) if total > 0 else float("nan")
