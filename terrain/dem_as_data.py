@@ -131,8 +131,10 @@ def dem_as_data(
             "a DEM with data over the map and under the survey",
             "check the DEM's extent and nodata",
         )
-    a = float(np.mean(diff[comp]))
-    var = float(np.var(diff[comp])) - float(np.mean(samples.z_var[comp]))
+    # sums over sorted values: the same bits in any row order of the survey
+    d, noise = np.sort(diff[comp]), np.sort(samples.z_var[comp])
+    a = float(np.mean(d))
+    var = float(np.mean(np.sort((d - a) ** 2))) - float(np.mean(noise))
     var = max(var, MIN_DEM_VAR)
     xy = np.vstack([samples.xy, np.column_stack([mx[valid], my[valid]])])
     z = np.concatenate([samples.z, v[valid] - a])

@@ -31,7 +31,7 @@ Cost: two fits and ``2 x n_folds`` fold fits with the hyperparameters held fixed
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -86,6 +86,9 @@ class DemReading:
     block_size_m: float
     block_rule: str
     seed: int
+    #: The two readings fitted on all the samples (``"mean"``, ``"data"``): the chosen one
+    #: is the map's own fit when nothing is added to its mean. Not part of the record.
+    models: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def note(self) -> str:
         """The choice in words, with both held-out RMSEs."""
@@ -100,8 +103,9 @@ class DemReading:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (the product's ``prior_reading`` attribute, the certificate)."""
-        return asdict(self)
+        """JSON-ready (the product's ``prior_reading`` attribute, the certificate): every
+        field but the fitted models."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "models"}
 
 
 def choose_dem_reading(
@@ -193,6 +197,7 @@ def choose_dem_reading(
         block_size_m=size,
         block_rule=rule,
         seed=int(seed),
+        models=references,
     )
 
 

@@ -157,6 +157,12 @@ def test_cli_prior_as_auto_records_the_choice(tmp_path):
     assert "cells as samples" in attrs["prior_as_data"]  # the chosen reading was applied
     assert attrs["mean_function"].startswith("ConstantMean")
     assert record["scores"]["data"]["heldout_rmse_m"] < record["scores"]["mean"]["heldout_rmse_m"]
+    # the choice's own fit is the map's: the same bits as asking for the data reading
+    r = runner.invoke(app, [*args[:-4], "--prior-as", "data", *args[-2:], "--out", str(out / "d")])
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(out / "product.nc") as a, xr.open_dataset(out / "d" / "product.nc") as b:
+        for band in ("elevation", "elevation_std", "elevation_std_relative"):
+            np.testing.assert_array_equal(a[band].values, b[band].values)
 
 
 def test_process_chooses_the_reading_and_certifies_it(tmp_path):

@@ -360,7 +360,7 @@ def _process(
         if reading == "auto":  # the reading the held-out landmarks map better (no steps)
             choice = choose_reading(prior, dem_mean, sel.samples, grid, settings, seed)
             reading = choice.choice
-        mean = "constant" if reading == "data" else dem_mean
+        mean = base = "constant" if reading == "data" else dem_mean
         if search:  # steps found in the selected samples (terrain.find_breaklines)
             mean = with_breaklines(mean, *breaklines, notes=found, samples=sel.samples)
         else:  # the vector file's steps (read at ingest) or given vertices, map's CRS
@@ -371,7 +371,11 @@ def _process(
 
             dem = prior.source if isinstance(prior, RasterMean) else prior
             samples, dem_note = dem_as_data(dem, sel.samples, grid.bounds)
-        rec = reconstruct_selection(sel, grid, mean, settings, seed, folds, samples=samples)
+        # the choice's own fit of that reading, unless steps joined its mean
+        fitted = choice.models[reading] if choice is not None and mean is base else None
+        rec = reconstruct_selection(
+            sel, grid, mean, settings, seed, folds, samples=samples, fitted=fitted
+        )
         if dem_note is not None:
             rec.product.attrs["prior_as_data"] = dem_note.note()
         if choice is not None:

@@ -164,6 +164,7 @@ def reconstruct_stage(
     landmark_t_s: np.ndarray | None = None,
     shared_xy_std: tuple[float, float] | None = None,
     horizontal_sd: float | None = None,
+    fitted: TerrainGP | None = None,
 ) -> Reconstruction:
     """The GP map (the terrain layer's defaults: kernel by evidence) with its error budget.
 
@@ -197,6 +198,9 @@ def reconstruct_stage(
         The samples' own horizontal 1-sigma (m; digitised contours): through the map's slope
         into both 1-sigmas and into the held-out check (:func:`toolkit.error_budget.
         heldout_slope_term`).
+    fitted : TerrainGP, optional
+        The map's GP already fitted on ``samples`` with ``mean`` and these settings (the
+        DEM reading's choice fits it: :mod:`toolkit.prior_reading`); not fitted again.
 
     Returns
     -------
@@ -205,9 +209,10 @@ def reconstruct_stage(
         offset) and ``elevation_std_relative`` (the map's own: without the shared offset, so
         data gaps show), all in metres.
     """
-    gp = map_estimator(mean, grid, settings, seed)
+    gp = fitted if fitted is not None else map_estimator(mean, grid, settings, seed)
     prior_note = prior_coarsening_note(gp.mean)
-    gp.fit(samples)
+    if fitted is None:
+        gp.fit(samples)
     if landmark_xy is None:
         landmark_xy = samples.xy
         if landmark_rel_z_std is None:
@@ -302,11 +307,12 @@ def reconstruct_selection(
     seed: int,
     heldout_folds: int,
     samples: ElevationSamples | None = None,
+    fitted: TerrainGP | None = None,
 ) -> Reconstruction:
     """:func:`reconstruct_stage` on a :func:`select_stage` result: its samples (or
     ``samples``: them and more, e.g. a DEM's cells as data), with the kept landmarks'
     relative vertical 1-sigma (shared offset removed, Eq 7) for the along-track term and
-    the survey's shared vertical 1-sigma."""
+    the survey's shared vertical 1-sigma; ``fitted``: the GP already fitted on them."""
     kept = sel.table["kept"]
     return reconstruct_stage(
         sel.samples if samples is None else samples,
@@ -320,6 +326,7 @@ def reconstruct_selection(
         shared_xy_std=(float(sel.shared_offset_std_m[0]), float(sel.shared_offset_std_m[1])),
         heldout_folds=heldout_folds,
         landmark_t_s=sel.table["t_s"][kept] if "t_s" in sel.table else None,
+        fitted=fitted,
     )
 
 

@@ -351,6 +351,8 @@ def _reconstruct_csv(
                 shared_z_std=table.shared_z_std,
                 heldout_folds=int(settings["certify"]["heldout_folds"]),
                 horizontal_sd=horizontal_sd,
+                # the choice's own fit of that reading, unless steps joined its mean
+                fitted=None if choice is None or lines is not None else choice.models[reading],
             )
     if lines is not None:  # each step's height, and where it dies out inside the survey
         from ..breaklines_io import step_notes
