@@ -202,3 +202,9 @@ def test_process_chooses_the_reading_and_certifies_it(tmp_path):
     assert ("prior_as_data" in attrs) == as_data  # the chosen reading is the one applied
     assert attrs["mean_function"].startswith("ConstantMean") == as_data
     assert "prior DEM read as (auto)" in r.output
+    from toolkit.report import write_report  # the HTML certificate (it needs no checkpoints)
+
+    html = write_report(
+        tmp_path / "report.html", product=out / "product.nc", certificate=out / "certificate.json"
+    ).read_text()
+    assert 'id="prior-reading"' in html and f"Read as <b>{record['choice']}</b>" in html
