@@ -77,12 +77,9 @@ def design_folds(
 
     Parameters
     ----------
-    xy : ndarray of shape (n, 2)
-        Sample locations, m.
-    target_d : ndarray of shape (m,)
-        Distance from each map cell to its nearest sample, m.
-    n_folds, seed : int
-        Folds, and the seed of the generator that deals the blocks.
+    xy, target_d, n_folds, seed
+        As :func:`terrain.heldout_design.matched_block_size` (samples and the map cells'
+        distances to them, m; folds; the seed of the blocks' deal).
     reference : TerrainGP
         A fit whose shortest length scale sets the side when no distance-matched side has
         2 x ``n_folds`` blocks.

@@ -15,10 +15,9 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
-import rasterio
 import xarray as xr
+from _rasters import write_geotiff
 from pyproj import Transformer
-from rasterio.transform import from_origin
 from typer.testing import CliRunner
 
 from terrain import ElevationSamples, Grid, InputError
@@ -104,12 +103,7 @@ def test_a_dem_away_from_the_survey_is_an_error():
 
 def test_cli_prior_as_data(tmp_path):
     g, dem = _dem(n=14)
-    tif = tmp_path / "dem.tif"
-    with rasterio.open(
-        tif, "w", driver="GTiff", height=g.ny, width=g.nx, count=1, dtype="float64", crs=UTM,
-        transform=from_origin(g.west, g.north, 30.0, 30.0),
-    ) as dst:  # fmt: skip
-        dst.write(dem.values, 1)
+    tif = write_geotiff(dem, tmp_path / "dem.tif")
     s = _survey(600)
     csv = tmp_path / "s.csv"
     pd.DataFrame({"x": s.xy[:, 0], "y": s.xy[:, 1], "z": s.z, "crs": UTM}).to_csv(csv, index=False)
@@ -149,7 +143,7 @@ def test_process_reads_the_prior_as_data_from_the_option_or_the_settings(tmp_pat
     truth = make_site(load_scenario(example / "scenario.toml"))
     dem = simulated_prior(truth, 10.0, 1.5, 0.3, np.random.default_rng(0))
     tif = tmp_path / "dem.tif"
-    _write(dem, tif)
+    write_geotiff(dem, tif)
     never = tmp_path / "never"
     for args in (["--prior-as", "data"], ["--prior", str(tif), "--prior-as", "dem"]):
         r = runner.invoke(app, ["process", str(example), *args, "--out", str(never)])
@@ -171,12 +165,3 @@ def test_process_reads_the_prior_as_data_from_the_option_or_the_settings(tmp_pat
     cert = json.loads((out / "certificate.json").read_text())
     assert cert["reconstruction"]["prior_as_data"] == attrs["prior_as_data"]
     assert "prior DEM" in r.output and "cells as samples" in r.output
-
-
-def _write(da, path):
-    g = Grid.from_dataarray(da)
-    with rasterio.open(
-        path, "w", driver="GTiff", height=g.ny, width=g.nx, count=1, dtype="float64",
-        crs=g.crs, transform=g.transform,
-    ) as dst:  # fmt: skip
-        dst.write(np.asarray(da.values, float), 1)

@@ -17,9 +17,8 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-import rasterio
 import xarray as xr
-from rasterio.transform import from_origin
+from _rasters import write_geotiff
 from typer.testing import CliRunner
 
 from terrain import ElevationSamples, Grid, InputError, RasterMean, TerrainGP
@@ -123,29 +122,21 @@ def test_bad_settings_are_input_errors():
 
 def test_cli_prior_as_auto_records_the_choice(tmp_path):
     dem, s = _dem("white"), _survey()
-    g = Grid.from_dataarray(dem)
-    tif = tmp_path / "dem.tif"
-    with rasterio.open(
-        tif, "w", driver="GTiff", height=g.ny, width=g.nx, count=1, dtype="float64", crs=UTM,
-        transform=from_origin(g.west, g.north, 20.0, 20.0),
-    ) as dst:  # fmt: skip
-        dst.write(dem.values, 1)
+    tif = write_geotiff(dem, tmp_path / "dem.tif")
     csv = tmp_path / "s.csv"
     pd.DataFrame({"x": s.xy[:, 0], "y": s.xy[:, 1], "z": s.z, "z_var": s.z_var, "crs": UTM}).to_csv(
         csv, index=False
     )
-    never = tmp_path / "never"
-    r = runner.invoke(app, ["reconstruct", str(csv), "--prior-as", "auto", "--out", str(never)])
-    assert isinstance(r.exception, InputError) and "--prior-as" in str(r.exception)
-    r = runner.invoke(
-        app,
-        ["reconstruct", str(csv), "--prior", str(tif), "--prior-as", "maybe", "--out", str(never)],
-    )
-    assert isinstance(r.exception, InputError) and '"auto"' in str(r.exception)
-    cfg = tmp_path / "bad.toml"
+    never, cfg = tmp_path / "never", tmp_path / "bad.toml"
     cfg.write_text('[prior]\nas = "sometimes"\n')
-    r = runner.invoke(app, ["reconstruct", str(csv), "--config", str(cfg), "--out", str(never)])
-    assert isinstance(r.exception, InputError) and "prior.as" in str(r.exception)
+    refused = {  # the option or setting named, before any work
+        "--prior-as": ["--prior-as", "auto"],  # nothing to read
+        '"auto"': ["--prior", str(tif), "--prior-as", "maybe"],
+        "prior.as": ["--config", str(cfg)],
+    }
+    for field, bad in refused.items():
+        r = runner.invoke(app, ["reconstruct", str(csv), *bad, "--out", str(never)])
+        assert isinstance(r.exception, InputError) and field in str(r.exception), field
     assert not never.exists()
     out = tmp_path / "m"
     args = ["reconstruct", str(csv), "--prior", str(tif), "--prior-as", "auto", "--resolution", "8"]
@@ -178,13 +169,7 @@ def test_process_chooses_the_reading_and_certifies_it(tmp_path):
     example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "field"
     truth = make_site(load_scenario(example / "scenario.toml"))
     dem = simulated_prior(truth, 10.0, 1.5, 0.3, np.random.default_rng(0))
-    g = Grid.from_dataarray(dem)
-    tif = tmp_path / "dem.tif"
-    with rasterio.open(
-        tif, "w", driver="GTiff", height=g.ny, width=g.nx, count=1, dtype="float64",
-        crs=g.crs, transform=g.transform,
-    ) as dst:  # fmt: skip
-        dst.write(dem.values, 1)
+    tif = write_geotiff(dem, tmp_path / "dem.tif")
     cfg = tmp_path / "auto.toml"
     cfg.write_text('[prior]\nas = "auto"\n')
     out = tmp_path / "out"
