@@ -193,3 +193,15 @@ def test_process_chooses_the_reading_and_certifies_it(tmp_path):
         tmp_path / "report.html", product=out / "product.nc", certificate=out / "certificate.json"
     ).read_text()
     assert 'id="prior-reading"' in html and f"Read as <b>{record['choice']}</b>" in html
+
+
+def test_too_few_samples_to_hold_out_leave_the_mean_and_say_why():
+    # Four samples cannot fill five folds' blocks: the choice falls back to the default
+    # reading (the mean) with the reason, rather than failing the run.
+    from toolkit.config import load_scenario
+    from toolkit.prior_reading import choose_reading
+
+    dem, s = _dem("white"), _survey()
+    few = s.subset(np.isin(np.arange(s.n), [0, 150, 400, 600]))
+    why = choose_reading(dem, RasterMean(dem), few, _grid(8.0), load_scenario(None), 0)
+    assert isinstance(why, str) and "read as the mean" in why and "blocks" in why

@@ -13,7 +13,7 @@ import json
 from typing import Any
 
 from terrain import ElevationSamples, Grid
-from terrain.errors import bad_input
+from terrain.errors import InputError, bad_input
 
 __all__ = ["PRIOR_READINGS", "choose_reading", "prior_reading", "reading_record"]
 
@@ -73,7 +73,9 @@ def choose_reading(
 
     Returns
     -------
-    terrain.dem_choice.DemReading
+    terrain.dem_choice.DemReading or str
+        The choice; or, where the survey cannot be held out in enough blocks to choose (a
+        handful of samples), why, in words: the DEM is then read as the mean (the default).
     """
     from terrain import RasterMean
     from terrain.dem_choice import choose_dem_reading
@@ -82,15 +84,20 @@ def choose_reading(
 
     dem = prior.source if isinstance(prior, RasterMean) else prior  # its own file or array
     folds = max(2, int(settings["certify"]["heldout_folds"]) or 5)
-    return choose_dem_reading(
-        map_estimator(dem_mean, grid, settings, seed),
-        map_estimator("constant", grid, settings, seed),
-        dem,
-        survey,
-        grid,
-        n_folds=folds,
-        seed=seed,
-    )
+    try:
+        return choose_dem_reading(
+            map_estimator(dem_mean, grid, settings, seed),
+            map_estimator("constant", grid, settings, seed),
+            dem,
+            survey,
+            grid,
+            n_folds=folds,
+            seed=seed,
+        )
+    except InputError as exc:
+        if "block" not in str(exc):  # only too few blocks to hold out is not the user's fault
+            raise
+        return f"--prior-as auto could not choose ({exc}); the prior DEM is read as the mean"
 
 
 def reading_record(choice: Any) -> str:

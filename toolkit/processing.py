@@ -356,10 +356,13 @@ def _process(
             require_checkpoints_on(cps, grid)
         folds = int(settings["certify"]["heldout_folds"])
         found: list[str] = []
-        choice = None
+        choice, unchosen = None, None
         if reading == "auto":  # the reading the held-out landmarks map better (no steps)
             choice = choose_reading(prior, dem_mean, sel.samples, grid, settings, seed)
-            reading = choice.choice
+            if isinstance(choice, str):  # too few landmarks to hold out: the mean, said
+                choice, unchosen, reading = None, choice, "mean"
+            else:
+                reading = choice.choice
         mean = base = "constant" if reading == "data" else dem_mean
         if search:  # steps found in the selected samples (terrain.find_breaklines)
             mean = with_breaklines(mean, *breaklines, notes=found, samples=sel.samples)
@@ -380,6 +383,9 @@ def _process(
             rec.product.attrs["prior_as_data"] = dem_note.note()
         if choice is not None:
             rec.product.attrs["prior_reading"] = reading_record(choice)
+        if unchosen:  # a certificate warning (certify_stage states the prior's notes)
+            note = rec.product.attrs.get("prior_note")
+            rec.product.attrs["prior_note"] = "; ".join(n for n in (note, unchosen) if n)
         rec.product.attrs["inputs"] = json.dumps(
             [{k: r[k] for k in ("role", "name", "sha256")} for r in files]
         )

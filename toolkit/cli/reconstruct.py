@@ -319,8 +319,12 @@ def _reconstruct_csv(
     if reading == "auto":  # the reading the survey's held-out samples map better
         with console.status("choosing how the prior DEM is read (held-out samples)..."):
             choice = choose_reading(prior, mean, survey, grid, settings, seed)
-        console.print(f"[yellow]note:[/] {escape(choice.note())}")
-        reading = choice.choice
+        if isinstance(choice, str):  # too few samples to hold out: the default, said
+            console.print(f"[yellow]warning:[/] {escape(choice)}")
+            choice, reading = None, "mean"
+        else:
+            console.print(f"[yellow]note:[/] {escape(choice.note())}")
+            reading = choice.choice
         mean = "constant" if reading == "data" else mean
     if reading == "data":  # its cells as samples (dem_as_data.py)
         from terrain.dem_as_data import dem_as_data
