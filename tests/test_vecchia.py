@@ -389,3 +389,18 @@ def test_a_set_that_does_not_factor_raises_numerical_error(compiled_loop, monkey
     plan = VecchiaPlan.build(X, 3, np.random.default_rng(0))
     with pytest.raises(NumericalError):
         vecchia_lml(SquaredExponential(1.0, 50.0), X, np.zeros(10), np.zeros(10), plan)
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_a_handful_of_samples_is_mapped_not_failed_by_the_search_folds(n):
+    # Fewer samples than the search's five folds: each is its own fold (the BIC ranks the
+    # candidates anyway). Before, the fit failed with "block_size / n_folds", an internal
+    # setting the user never passed (found in session 47 with four spot heights).
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0.0, 300.0, (n, 2))
+    s = ElevationSamples(xy, 100 + 0.05 * xy[:, 0] + rng.normal(0, 0.1, n), 0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateFitWarning)
+        gp = TerrainGP(seed=0).fit(s)
+    mu, sd = gp.predict(xy, return_std=True)
+    assert np.all(np.isfinite(mu)) and np.all(sd > 0)
