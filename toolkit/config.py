@@ -101,7 +101,9 @@ resampling = "bilinear"        # reprojection of a DEM in another CRS
 as = "mean"                    # "mean": a + b * DEM (above); "data": its own cells as samples
                                # with their datum offset and 1-sigma measured on the survey,
                                # under a constant mean -- for a DEM noisier than the survey's
-                               # interpolation (docs/terrain.md "A satellite DEM as data")
+                               # interpolation (docs/terrain.md "A satellite DEM as data");
+                               # "auto": whichever maps the survey's held-out blocks better
+                               # (docs/terrain.md "The DEM's reading chosen by the survey")
 resolution_m = 75.0            # simulation: cell of the DEM written (75 m = 8 x 8 on 600 m)
 offset_m = 1.5                 # simulation: its vertical datum offset against GPS heights (m)
 noise_sd_m = 0.3               # simulation: its independent error per cell (m)
