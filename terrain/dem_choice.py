@@ -43,6 +43,7 @@ from .estimator_clone import clone
 from .fold_fit import fold_predictor
 from .heldout_blocks import design_folds, target_points
 from .heldout_design import distance_weights, heldout_distances
+from .json_safe import json_safe
 from .metrics import interval_coverage, nlpd, rmse
 from .samples import ElevationSamples
 
@@ -105,7 +106,8 @@ class DemReading:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (the product's ``prior_reading`` attribute, the certificate): every
         field but the fitted models."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "models"}
+        record = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "models"}
+        return json_safe(record)  # a fold without weight: None, not NaN
 
 
 def choose_dem_reading(
