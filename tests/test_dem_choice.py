@@ -204,4 +204,4 @@ def test_too_few_samples_to_hold_out_leave_the_mean_and_say_why():
     dem, s = _dem("white"), _survey()
     few = s.subset(np.isin(np.arange(s.n), [0, 150, 400, 600]))
     why = choose_reading(dem, RasterMean(dem), few, _grid(8.0), load_scenario(None), 0)
-    assert isinstance(why, str) and "read as the mean" in why and "blocks" in why
+    assert isinstance(why, str) and "read as the mean" in why and "4 samples for 5" in why

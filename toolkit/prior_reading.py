@@ -13,7 +13,7 @@ import json
 from typing import Any
 
 from terrain import ElevationSamples, Grid
-from terrain.errors import InputError, bad_input
+from terrain.errors import bad_input
 
 __all__ = ["PRIOR_READINGS", "choose_reading", "prior_reading", "reading_record"]
 
@@ -84,20 +84,20 @@ def choose_reading(
 
     dem = prior.source if isinstance(prior, RasterMean) else prior  # its own file or array
     folds = max(2, int(settings["certify"]["heldout_folds"]) or 5)
-    try:
-        return choose_dem_reading(
-            map_estimator(dem_mean, grid, settings, seed),
-            map_estimator("constant", grid, settings, seed),
-            dem,
-            survey,
-            grid,
-            n_folds=folds,
-            seed=seed,
+    if survey.n < folds:  # too few samples to hold out one block per fold
+        return (
+            f"--prior-as auto could not choose ({survey.n} samples for {folds} held-out "
+            "folds); the prior DEM is read as the mean"
         )
-    except InputError as exc:
-        if "block" not in str(exc):  # only too few blocks to hold out is not the user's fault
-            raise
-        return f"--prior-as auto could not choose ({exc}); the prior DEM is read as the mean"
+    return choose_dem_reading(
+        map_estimator(dem_mean, grid, settings, seed),
+        map_estimator("constant", grid, settings, seed),
+        dem,
+        survey,
+        grid,
+        n_folds=folds,
+        seed=seed,
+    )
 
 
 def reading_record(choice: Any) -> str:
