@@ -28,7 +28,7 @@ from .errors import bad_input
 from .raster_source import open_source
 from .samples import ElevationSamples
 
-__all__ = ["DemAsData", "dem_as_data"]
+__all__ = ["DemAsData", "DemCells", "dem_as_data"]
 
 #: The DEM's variance as a sample is floored at this (m^2): a DEM that agrees with the survey
 #: to its noise is still not exact.
@@ -99,52 +99,108 @@ def dem_as_data(
         No CRS on the samples; the DEM without a valid cell over the area or under the
         survey.
     """
-    from pyproj import Transformer
+    return DemCells.read(dem, samples.crs, bounds, source_crs).as_samples(samples)
 
-    if samples.crs is None:
-        raise bad_input("samples.crs", None, "the map's CRS", "build ElevationSamples(crs=...)")
-    src = open_source(dem, source_crs)
-    to_src = Transformer.from_crs(samples.crs, src.crs, always_xy=True)
-    to_map = Transformer.from_crs(src.crs, samples.crs, always_xy=True)
-    w, s, e, n = bounds
-    bx, by = to_src.transform([w, e, e, w], [s, s, n, n])
-    values, t = src.read((min(bx), min(by), max(bx), max(by)), pad=1)
-    rows, cols = np.indices(values.shape)  # axis-aligned (raster_source checks it)
-    cx, cy = t.c + t.a * (cols.ravel() + 0.5), t.f + t.e * (rows.ravel() + 0.5)  # centres
-    mx, my = to_map.transform(cx, cy)
-    inside = (mx >= w) & (mx <= e) & (my >= s) & (my <= n)
-    v = values.ravel()
-    valid = inside & np.isfinite(v)
-    # the survey against the DEM cell each sample falls in
-    sx, sy = to_src.transform(samples.xy[:, 0], samples.xy[:, 1])
-    c = np.floor((np.asarray(sx) - t.c) / t.a).astype(int)
-    r = np.floor((np.asarray(sy) - t.f) / t.e).astype(int)
-    ok = (r >= 0) & (r < values.shape[0]) & (c >= 0) & (c < values.shape[1])
-    under = np.full(samples.n, np.nan)
-    under[ok] = values[r[ok], c[ok]]
-    diff = under - samples.z
-    comp = np.isfinite(diff)
-    if not valid.any() or comp.sum() < 2:
-        raise bad_input(
-            "prior DEM",
-            f"{int(valid.sum())} valid cells over the map, {int(comp.sum())} under the survey",
-            "a DEM with data over the map and under the survey",
-            "check the DEM's extent and nodata",
+
+@dataclass(frozen=True)
+class DemCells:
+    """A DEM's cells over a map's area, read once (:meth:`read`), as samples of any survey
+    of that area (:meth:`as_samples`): the held-out folds of
+    :func:`terrain.dem_choice.choose_dem_reading` compare each fold's survey with the same
+    cells without reading the DEM again.
+
+    Attributes
+    ----------
+    values : ndarray of shape (rows, cols)
+        The DEM's cells over the area (NaN: nodata), m.
+    transform : affine.Affine
+        Their transform, in the DEM's CRS.
+    to_source : pyproj.Transformer
+        Map CRS -> the DEM's CRS.
+    xy : ndarray of shape (k, 2)
+        The valid cells' centres inside the area, map CRS, m.
+    z : ndarray of shape (k,)
+        Their values, m.
+    n_nodata : int
+        Cells over the area left out (nodata).
+    """
+
+    values: np.ndarray
+    transform: Any
+    to_source: Any
+    xy: np.ndarray
+    z: np.ndarray
+    n_nodata: int
+
+    @classmethod
+    def read(
+        cls,
+        dem: Any,
+        crs: Any,
+        bounds: tuple[float, float, float, float],
+        source_crs: Any = None,
+    ) -> DemCells:
+        """The cells of ``dem`` whose centres fall inside ``bounds`` (map ``crs``, m; the
+        survey's, None an :class:`InputError`)."""
+        from pyproj import Transformer
+
+        if crs is None:
+            fix = "build ElevationSamples(crs=...)"
+            raise bad_input("samples.crs", None, "the map's CRS", fix)
+
+        src = open_source(dem, source_crs)
+        to_src = Transformer.from_crs(crs, src.crs, always_xy=True)
+        to_map = Transformer.from_crs(src.crs, crs, always_xy=True)
+        w, s, e, n = bounds
+        bx, by = to_src.transform([w, e, e, w], [s, s, n, n])
+        values, t = src.read((min(bx), min(by), max(bx), max(by)), pad=1)
+        rows, cols = np.indices(values.shape)  # axis-aligned (raster_source checks it)
+        cx, cy = t.c + t.a * (cols.ravel() + 0.5), t.f + t.e * (rows.ravel() + 0.5)  # centres
+        mx, my = to_map.transform(cx, cy)
+        inside = (mx >= w) & (mx <= e) & (my >= s) & (my <= n)
+        v = values.ravel()
+        valid = inside & np.isfinite(v)
+        xy = np.column_stack([np.asarray(mx)[valid], np.asarray(my)[valid]])
+        n_nodata = int((inside & ~np.isfinite(v)).sum())
+        return cls(values, t, to_src, xy, v[valid], n_nodata)
+
+    def as_samples(self, samples: ElevationSamples) -> tuple[ElevationSamples, DemAsData]:
+        """``samples`` followed by the cells, their offset and 1-sigma measured on
+        ``samples`` (:func:`dem_as_data`)."""
+        t, values = self.transform, self.values
+        # the survey against the DEM cell each sample falls in
+        sx, sy = self.to_source.transform(samples.xy[:, 0], samples.xy[:, 1])
+        c = np.floor((np.asarray(sx) - t.c) / t.a).astype(int)
+        r = np.floor((np.asarray(sy) - t.f) / t.e).astype(int)
+        ok = (r >= 0) & (r < values.shape[0]) & (c >= 0) & (c < values.shape[1])
+        under = np.full(samples.n, np.nan)
+        under[ok] = values[r[ok], c[ok]]
+        diff = under - samples.z
+        comp = np.isfinite(diff)
+        if not self.z.size or comp.sum() < 2:
+            raise bad_input(
+                "prior DEM",
+                f"{self.z.size} valid cells over the map, {int(comp.sum())} under the survey",
+                "a DEM with data over the map and under the survey",
+                "check the DEM's extent and nodata",
+            )
+        # sums over sorted values: the same bits in any row order of the survey
+        d, noise = np.sort(diff[comp]), np.sort(samples.z_var[comp])
+        a = float(np.mean(d))
+        var = float(np.mean(np.sort((d - a) ** 2))) - float(np.mean(noise))
+        var = max(var, MIN_DEM_VAR)
+        k = self.z.size
+        out = ElevationSamples(
+            np.vstack([samples.xy, self.xy]),
+            np.concatenate([samples.z, self.z - a]),
+            np.concatenate([samples.z_var, np.full(k, var)]),
+            crs=samples.crs,
         )
-    # sums over sorted values: the same bits in any row order of the survey
-    d, noise = np.sort(diff[comp]), np.sort(samples.z_var[comp])
-    a = float(np.mean(d))
-    var = float(np.mean(np.sort((d - a) ** 2))) - float(np.mean(noise))
-    var = max(var, MIN_DEM_VAR)
-    xy = np.vstack([samples.xy, np.column_stack([mx[valid], my[valid]])])
-    z = np.concatenate([samples.z, v[valid] - a])
-    z_var = np.concatenate([samples.z_var, np.full(int(valid.sum()), var)])
-    out = ElevationSamples(xy, z, z_var, crs=samples.crs)
-    record = DemAsData(
-        n_cells=int(valid.sum()),
-        n_nodata=int((inside & ~np.isfinite(v)).sum()),
-        offset_m=a,
-        sd_m=float(np.sqrt(var)),
-        n_compared=int(comp.sum()),
-    )
-    return out, record
+        record = DemAsData(
+            n_cells=k,
+            n_nodata=self.n_nodata,
+            offset_m=a,
+            sd_m=float(np.sqrt(var)),
+            n_compared=int(comp.sum()),
+        )
+        return out, record

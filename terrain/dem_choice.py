@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .dem_as_data import dem_as_data
+from .dem_as_data import DemCells
 from .errors import bad_input
 from .estimator_clone import clone
 from .fold_fit import fold_predictor
@@ -157,7 +157,8 @@ def choose_dem_reading(
     if bounds is None:
         raise bad_input("targets", type(targets).__name__, "the map's terrain.Grid", "")
     samples = samples.by_position()  # blocks and fits in one order: any row order, same bits
-    with_dem = dem_as_data(dem, samples, bounds, source_crs)[0]
+    cells = DemCells.read(dem, samples.crs, bounds, source_crs)  # once: every fold reads them
+    with_dem = cells.as_samples(samples)[0]
     references = {"mean": clone(as_mean).fit(samples), "data": clone(as_data).fit(with_dem)}
     target_d = cKDTree(samples.xy).query(target_points(targets, samples.xy))[0]
     size, rule, fold, _ = design_folds(samples.xy, target_d, n_folds, seed, references["mean"])
@@ -174,7 +175,7 @@ def choose_dem_reading(
             test = fold == k
             train = samples.subset(~test)
             if reading == "data":  # offset and 1-sigma measured on the fold's own samples
-                train = dem_as_data(dem, train, bounds, source_crs)[0]
+                train = cells.as_samples(train)[0]
             model, m, s = fit_predict(train, samples.xy[test])
             mu[test] = m
             noise = float(getattr(model, "nugget_", 0.0)) + samples.z_var[test]
