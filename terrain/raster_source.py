@@ -289,6 +289,7 @@ def _from_dataset(
     factor = vertical_factor(units, crs)
     scale, offset = band_scale * factor, band_offset * factor
     vertical = _vertical_text(band_scale, band_offset, units or "the CRS's vertical unit", factor)
+    common["crs"], vertical = _horizontal(crs, vertical)
     if keep_path is not None:
         if nodata is not None and file_nodata is not None and nodata != file_nodata:
             array = _mask_nodata(ds.read(1, masked=True), nodata)  # both values apply
@@ -296,6 +297,15 @@ def _from_dataset(
         return RasterSource(**common, path=keep_path, scale=scale, offset=offset, vertical=vertical)
     array = _mask_nodata(ds.read(1, masked=True), common["nodata"]) * scale + offset
     return RasterSource(**common, array=array, vertical=vertical)
+
+
+def _horizontal(crs: CRS, vertical: str) -> tuple[CRS, str]:
+    """A compound CRS's horizontal part (what the cells are placed by: PROJ cannot always
+    build an operation from a map's 2-D CRS to a compound one, e.g. once the geoid's grid is
+    installed) and the words of ``vertical`` with the heights' datum named."""
+    if not crs.is_compound:
+        return crs, vertical
+    return crs.sub_crs_list[0], f"{vertical}; heights above {crs.sub_crs_list[-1].name}"
 
 
 def _vertical_text(scale: float, offset: float, units: Any, factor: float) -> str:
@@ -357,6 +367,7 @@ def _from_dataarray(da: Any, source_crs: Any, nodata: float | None) -> RasterSou
     units = da.attrs.get("units")
     factor = vertical_factor(units, crs)
     vertical = _vertical_text(1.0, 0.0, units or "the CRS's vertical unit", factor)
+    crs, vertical = _horizontal(crs, vertical)
     return RasterSource(
         "DataArray", crs, t, values.shape, nodata, array=values * factor, vertical=vertical
     )

@@ -30,6 +30,12 @@ from typing import Any
 import numpy as np
 
 from .errors import bad_input
+from .vertical_crs import (
+    is_vertical_crs_key,
+    vertical_crs_key,
+    vertical_crs_name,
+    vertical_undulation,
+)
 
 __all__ = [
     "GEOIDS",
@@ -40,6 +46,7 @@ __all__ = [
     "geoid_grid",
     "geoid_height",
     "height_datum_option",
+    "height_words",
     "lattice_geoid_height",
     "product_in_datum",
     "split_vertical",
@@ -88,12 +95,27 @@ def _search_dirs() -> list[Path]:
 
 def height_datum_option(value: Any, field: str, allow_auto: bool = False) -> str:
     """``value`` as one of :data:`HEIGHT_DATUMS` (case-insensitive; ``"auto"`` too when
-    ``allow_auto``), else an :class:`InputError` naming ``field``."""
+    ``allow_auto``) or a national vertical CRS's ``"AUTH:CODE"``
+    (:func:`terrain.vertical_crs.vertical_crs_key`; EPSG:5773 / 3855 are ``"egm96"`` /
+    ``"egm2008"``), else an :class:`InputError` naming ``field``."""
     text = str(value).strip().lower()
     allowed = ("auto", *HEIGHT_DATUMS) if allow_auto else HEIGHT_DATUMS
-    if text not in allowed:
-        raise bad_input(field, value, " / ".join(allowed), f"e.g. {field} egm96")
-    return text
+    if text in allowed:
+        return text
+    if is_vertical_crs_key(text):
+        return _datum_of_vertical(vertical_crs_key(value, field))
+    raise bad_input(
+        field,
+        value,
+        " / ".join(allowed) + " or a vertical CRS (e.g. EPSG:5941, NN2000)",
+        f"e.g. {field} egm96",
+    )
+
+
+def _datum_of_vertical(key: str) -> str:
+    """A vertical CRS's key as glacimap's datum: a key of :data:`GEOIDS` for EGM96 / EGM2008
+    (their grids found by glacimap), else the key itself (PROJ's operation)."""
+    return next((k for k, g in GEOIDS.items() if g["crs"] == key.upper()), key.upper())
 
 
 def geoid_grid(geoid: str, field: str = "geoid") -> Path:
@@ -145,7 +167,8 @@ def geoid_height(
     lon_deg, lat_deg : array_like, shape (n,)
         WGS 84 longitude and latitude, degrees.
     geoid : str
-        A key of :data:`GEOIDS`.
+        A key of :data:`GEOIDS`, or a national vertical CRS's ``"AUTH:CODE"``
+        (:mod:`terrain.vertical_crs`: PROJ's own operation and grid).
     field : str
         The option or setting that named the geoid (for errors).
 
@@ -156,6 +179,10 @@ def geoid_height(
     """
     lon = np.atleast_1d(np.asarray(lon_deg, float))
     lat = np.atleast_1d(np.asarray(lat_deg, float))
+    if is_vertical_crs_key(geoid):  # a national datum (or EGM96 / EGM2008 by EPSG code)
+        geoid = height_datum_option(geoid, field)
+        if geoid not in GEOIDS:
+            return vertical_undulation(lon, lat, geoid, field)
     grid = geoid_grid(geoid, field)
     _, _, n = _undulation(str(grid)).transform(lon, lat, np.zeros_like(lon), errcheck=False)
     n = np.asarray(n, float)
@@ -189,13 +216,16 @@ def ellipsoidal_height(
 
 def split_vertical(crs: Any) -> tuple[Any, str | None]:
     """``(horizontal CRS, height datum)`` of a raster's CRS: a compound CRS with a geoid's
-    height (e.g. ``EPSG:32632+5773``) gives that geoid's key of :data:`GEOIDS`, a 3-D
-    geographic CRS (EPSG:4979) ``"ellipsoidal"``, anything else ``None`` (not stated).
+    height (e.g. ``EPSG:32632+5773``) gives that geoid's key of :data:`GEOIDS`, one with a
+    national height (``EPSG:25833+5941``: NN2000) the vertical CRS's ``"EPSG:5941"``
+    (:mod:`terrain.vertical_crs`), a 3-D geographic CRS (EPSG:4979) ``"ellipsoidal"``,
+    anything else ``None`` (not stated).
 
     Raises
     ------
     InputError
-        A compound CRS whose heights are on another vertical datum (NAVD88, EVRF2007...).
+        A compound CRS whose heights are not in metres or whose vertical CRS has no
+        authority code.
     """
     from pyproj import CRS
 
@@ -203,18 +233,7 @@ def split_vertical(crs: Any) -> tuple[Any, str | None]:
     if not crs.is_compound:
         return crs, ("ellipsoidal" if crs.is_geographic and len(crs.axis_info) == 3 else None)
     horizontal, vertical = crs.sub_crs_list[0], crs.sub_crs_list[-1]
-    code = vertical.to_string()
-    for key, g in GEOIDS.items():
-        if g["crs"] == code:
-            return horizontal, key
-    raise bad_input(
-        "vertical CRS",
-        f"{vertical.name} ({code})",
-        "heights on the ellipsoid or above "
-        + " / ".join(f"{k.upper()} ({g['crs']})" for k, g in GEOIDS.items()),
-        "convert the DEM's heights (e.g. gdalwarp -t_srs EPSG:4326+5773), or drop the "
-        "vertical CRS and state the datum with the command's heights option",
-    )
+    return horizontal, _datum_of_vertical(vertical_crs_key(vertical, "vertical CRS"))
 
 
 def dem_height_datum(attrs: dict[str, Any]) -> str | None:
@@ -283,16 +302,12 @@ def product_in_datum(ds: Any, datum: str, field: str = "--heights") -> tuple[Any
     out = ds.copy()
     out["elevation"] = ds["elevation"] + xr.DataArray(shift, dims=("y", "x"))
     out["elevation"].attrs = dict(ds["elevation"].attrs)
-    words = (
-        "ellipsoidal height above the WGS 84 ellipsoid"
-        if datum == "ellipsoidal"
-        else f"orthometric height above {datum.upper()}"
-    )
     out.attrs = {
         **ds.attrs,
         "height_datum": datum,
-        "vertical_datum": f"{words} (from the map's heights above {datum_words(own)} with the "
-        "geoid's undulation; the geoid model's own error is not in elevation_std)",
+        "vertical_datum": f"{height_words(datum)} (from the map's heights above "
+        f"{datum_words(own)} with the geoid's undulation; the geoid model's own error is "
+        "not in elevation_std)",
     }
     note = (
         f"heights carried from {datum_words(own)} to {datum_words(datum)}: "
@@ -303,8 +318,19 @@ def product_in_datum(ds: Any, datum: str, field: str = "--heights") -> tuple[Any
 
 
 def datum_words(datum: str) -> str:
-    """A datum of :data:`HEIGHT_DATUMS` in words: "the WGS 84 ellipsoid", "EGM96"..."""
-    return "the WGS 84 ellipsoid" if datum == "ellipsoidal" else datum.upper()
+    """A datum (:func:`height_datum_option`) in words: "the WGS 84 ellipsoid", "EGM96",
+    "NN2000 height (EPSG:5941)"..."""
+    if datum == "ellipsoidal":
+        return "the WGS 84 ellipsoid"
+    return datum.upper() if datum in GEOIDS else vertical_crs_name(datum)
+
+
+def height_words(datum: str) -> str:
+    """What a height on ``datum`` is, in words: "ellipsoidal height above the WGS 84
+    ellipsoid", "orthometric height above EGM96"..."""
+    if datum == "ellipsoidal":
+        return "ellipsoidal height above the WGS 84 ellipsoid"
+    return f"orthometric height above {datum_words(datum)}"
 
 
 def stated_or_given(stated: str | None, given: Any, field: str, what: str) -> str | None:

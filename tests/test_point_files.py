@@ -273,8 +273,9 @@ def test_tiles_of_one_survey_are_reduced_together(tmp_path):
 
 
 def test_a_clouds_compound_crs_states_its_heights(tmp_path):
-    # EGM96 heights (EPSG:5773) become the map's stated datum; NAVD88 (5703) is named, not
-    # converted; heights in feet (NAVD88 ftUS, 6360) are refused; an option contradicting
+    # EGM96 heights (EPSG:5773) become the map's stated datum, and so do NAVD88's (5703: a
+    # national datum, carried by PROJ's grid where change / certify need it); heights in
+    # feet (NAVD88 ftUS, 6360) are refused; an option contradicting
     # the file is refused.
     from toolkit.samples_io import samples_height_attrs
 
@@ -289,7 +290,8 @@ def test_a_clouds_compound_crs_states_its_heights(tmp_path):
     assert table.samples.crs.equals(CRS(UTM))  # the map's CRS is the horizontal part
     navd = _las(tmp_path / "navd.laz", xy, z, crs="EPSG:32618+5703")
     attrs = samples_height_attrs([navd], None)
-    assert "height_datum" not in attrs and "NAVD88" in attrs["vertical_datum"]
+    assert attrs["height_datum"] == "EPSG:5703"
+    assert attrs["vertical_datum"].startswith("orthometric height above NAVD88 height (EPSG:5703)")
     feet = _las(tmp_path / "feet.laz", xy, z, crs="EPSG:32618+6360")
     with pytest.raises(InputError, match="US survey foot"):
         read_sample_files([feet])

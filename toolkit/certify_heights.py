@@ -39,7 +39,8 @@ def checkpoints_in_dem_datum(
     cps : toolkit.certify_io.Checkpoints
     raster : toolkit.dem_io.DemRaster
     dem_heights, checkpoint_heights : str, optional
-        ``"ellipsoidal"``, ``"egm96"`` or ``"egm2008"`` where the DEM / the checkpoints do
+        ``"ellipsoidal"``, ``"egm96"``, ``"egm2008"`` or a national vertical CRS
+        (``"EPSG:5941"``) where the DEM / the checkpoints do
         not state their datum (an option that contradicts their own statement is an error).
 
     Returns
@@ -62,8 +63,8 @@ def checkpoints_in_dem_datum(
             if d_dem == d_cp and known is not None
             else f"heights compared as stored ({unknown} no vertical datum"
             + (f"; taken as above {datum_words(known)}" if known else "")
-            + "): pass --dem-heights / --checkpoint-heights (ellipsoidal, egm96, egm2008) if "
-            "the two differ"
+            + "): pass --dem-heights / --checkpoint-heights (ellipsoidal, egm96, egm2008, "
+            "EPSG:CODE) if the two differ"
         )
         return cps, record
     from pyproj import CRS, Transformer

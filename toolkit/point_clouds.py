@@ -143,10 +143,10 @@ def _header_crs(paths: list[Path], field_name: str) -> CRS | None:
 
 def stated_heights(paths: list[str | Path]) -> tuple[str | None, str]:
     """The height datum the clouds' header CRS (or a raster's CRS) states: ``(datum, "")``
-    for the ellipsoid or a geoid glacimap converts
-    (:func:`terrain.vertical_datum.split_vertical`), ``(None, words)`` for another vertical
-    datum (named, not converted: ``change`` and ``certify`` take it as not stated),
-    ``(None, "")`` when no file says."""
+    for the ellipsoid, a world geoid or a national datum
+    (:func:`terrain.vertical_datum.split_vertical`), ``(None, words)`` for a vertical CRS
+    glacimap cannot carry (named, not converted: ``change`` and ``certify`` take it as not
+    stated), ``(None, "")`` when no file says."""
     from terrain.errors import InputError
     from terrain.vertical_datum import split_vertical
 

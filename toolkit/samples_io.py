@@ -421,11 +421,12 @@ def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str
     heights are above it (:mod:`toolkit.icesat2`): the
     product's default ``vertical_datum`` says so, and ``given`` may only confirm it. A CSV's
     ``z`` is taken as given, so the map is in the CSV's datum: ``given``
-    (``--samples-heights``: ``"ellipsoidal"``, ``"egm96"``, ``"egm2008"``) names it
+    (``--samples-heights``: ``"ellipsoidal"``, ``"egm96"``, ``"egm2008"``, a national
+    vertical CRS such as ``"EPSG:5941"``) names it
     (``height_datum``), else the product says it is not stated -- never the GPS ellipsoid by
     default (``glacimap change`` / ``certify`` would carry it as such). A point cloud whose
-    header CRS is compound states its own (``EPSG:32632+5773``: EGM96); another vertical
-    datum (NAVD88...) is named, not converted.
+    header CRS is compound states its own (``EPSG:32632+5773``: EGM96; ``EPSG:25833+5941``:
+    NN2000); a vertical CRS glacimap cannot carry (heights in feet) is named, not converted.
 
     Raises
     ------
@@ -463,11 +464,11 @@ def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str
     if given is None:
         return {
             "vertical_datum": "the samples' z as given (their vertical datum not stated: "
-            "glacimap reconstruct --samples-heights ellipsoidal | egm96 | egm2008)"
+            "glacimap reconstruct --samples-heights ellipsoidal | egm96 | egm2008 | EPSG:CODE)"
         }
-    words = (
-        "ellipsoidal height above the WGS 84 ellipsoid"
-        if given == "ellipsoidal"
-        else f"orthometric height above {given.upper()}"
-    )
-    return {"height_datum": given, "vertical_datum": f"{words} (the samples' z, as stated)"}
+    from terrain.vertical_datum import height_words
+
+    return {
+        "height_datum": given,
+        "vertical_datum": f"{height_words(given)} (the samples' z, as stated)",
+    }

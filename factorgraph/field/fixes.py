@@ -170,10 +170,10 @@ def project_fixes(fixes: GPSFixes, gps_crs: str, map_crs: str) -> np.ndarray:
 
     ``gps_crs`` is the geographic CRS of the file (EPSG:4326 / EPSG:4979: WGS 84); the height
     passes through unchanged, unless ``gps_crs`` is compound with a geoid's height (e.g.
-    ``EPSG:4326+5773``, WGS 84 + EGM96): then it is carried to the ellipsoid
-    (:func:`terrain.vertical_datum.ellipsoidal_height`). A map CRS that is not projected,
-    another vertical CRS, or a transform that gives non-finite coordinates (a fix outside
-    the CRS's area), is an InputError.
+    ``EPSG:4326+5773``, WGS 84 + EGM96, or a national height such as ``EPSG:4326+5941``):
+    then it is carried to the ellipsoid (:func:`terrain.vertical_datum.ellipsoidal_height`).
+    A map CRS that is not projected, a vertical CRS glacimap cannot carry, or a transform
+    that gives non-finite coordinates (a fix outside the CRS's area), is an InputError.
     """
     from pyproj import CRS, Transformer
     from pyproj.exceptions import CRSError, ProjError
@@ -192,20 +192,11 @@ def project_fixes(fixes: GPSFixes, gps_crs: str, map_crs: str) -> np.ndarray:
     if not src.is_geographic:
         raise bad_input("gps crs", gps_crs, "a geographic CRS (lat/lon)", "e.g. EPSG:4326")
     h = fixes.h_m
-    if src.is_compound:  # heights above a geoid, stated by the CRS: to the ellipsoid
-        from terrain.vertical_datum import GEOIDS, ellipsoidal_height
+    if src.is_compound:  # heights above a geoid or a national datum: to the ellipsoid
+        from terrain.vertical_datum import ellipsoidal_height, split_vertical
 
-        vertical = src.sub_crs_list[-1].to_string()
-        geoid = next((k for k, g in GEOIDS.items() if g["crs"] == vertical), None)
-        if geoid is None:
-            raise bad_input(
-                "gps crs",
-                gps_crs,
-                "heights on the ellipsoid (EPSG:4979) or above "
-                + " / ".join(f"{k.upper()} ({g['crs']})" for k, g in GEOIDS.items()),
-                "convert the heights, or state them as e.g. EPSG:4326+5773",
-            )
-        h = ellipsoidal_height(h, fixes.lon_deg, fixes.lat_deg, geoid, "gps crs")
+        _, datum = split_vertical(src)
+        h = ellipsoidal_height(h, fixes.lon_deg, fixes.lat_deg, datum, "gps crs")
         src = src.sub_crs_list[0]
     try:
         tr = Transformer.from_crs(src, dst, always_xy=True)

@@ -91,7 +91,8 @@ def certify_command(
         str | None,
         typer.Option(
             help="What the DEM's heights are above if it does not say (its compound CRS, a "
-            "glacimap product): ellipsoidal, egm96 (SRTM, NASADEM, ASTER), egm2008 (GLO-30)."
+            "glacimap product): ellipsoidal, egm96 (SRTM, NASADEM, ASTER), egm2008 (GLO-30), "
+            "or a national vertical CRS (EPSG:5941 NN2000, EPSG:5703 NAVD88...)."
         ),
     ] = None,
     checkpoint_heights: Annotated[

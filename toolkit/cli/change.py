@@ -128,7 +128,8 @@ def change_command(
         str | None,
         typer.Option(
             help="What BEFORE's heights are above, when it does not say: ellipsoidal, egm96 "
-            "(SRTM, NASADEM, ASTER), egm2008 (GLO-30). Default: the DEM's own statement "
+            "(SRTM, NASADEM, ASTER), egm2008 (GLO-30), or a national vertical CRS "
+            "(EPSG:5941 NN2000...). Default: the DEM's own statement "
             "(a glacimap product: ellipsoidal; a compound CRS)."
         ),
     ] = None,

@@ -95,7 +95,8 @@ def export_command(
         str | None,
         typer.Option(
             help="Write heights above: ellipsoidal, egm96 (SRTM's, most maps' sea level) or "
-            "egm2008 (GLO-30). Default: as the product is (glacimap maps: ellipsoidal)."
+            "egm2008 (GLO-30), or a national vertical CRS (EPSG:5941 NN2000...). Default: as "
+            "the product is (glacimap maps: ellipsoidal)."
         ),
     ] = None,
 ) -> None:

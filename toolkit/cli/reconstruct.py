@@ -140,7 +140,8 @@ def reconstruct(
         str | None,
         typer.Option(
             "--samples-heights",
-            help="What a CSV's z are above: ellipsoidal, egm96, egm2008. The map is in the "
+            help="What a CSV's z are above: ellipsoidal, egm96, egm2008, or a national "
+            "vertical CRS (EPSG:5941 NN2000, EPSG:5703 NAVD88...). The map is in the "
             "samples' datum and says so; without, it says the datum is not stated.",
         ),
     ] = None,
