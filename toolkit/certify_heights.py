@@ -51,7 +51,7 @@ def checkpoints_in_dem_datum(
         to the checkpoints' heights, words).
     """
     dem_stated = split_vertical(raster.grid.crs)[1] or dem_height_datum(raster.provenance)
-    cp_stated = None if cps.crs is None else split_vertical(cps.crs)[1]
+    cp_stated = cps.height_datum or (None if cps.crs is None else split_vertical(cps.crs)[1])
     d_dem = stated_or_given(dem_stated, dem_heights, "--dem-heights", "DEM")
     d_cp = stated_or_given(cp_stated, checkpoint_heights, "--checkpoint-heights", "checkpoints")
     record: dict[str, Any] = {"dem": d_dem, "checkpoints": d_cp, "shift_m": 0.0}

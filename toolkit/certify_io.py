@@ -88,6 +88,9 @@ class Checkpoints:
     note : str
         How a GIS layer was read (its layers, lines' vertices, attributes left out); "" for
         a table.
+    height_datum : str or None
+        The datum the file states for its heights (an Emlid export's ellipsoidal heights:
+        ``"ellipsoidal"``); ``None`` when only a CRS could say.
     """
 
     xy: np.ndarray
@@ -99,6 +102,7 @@ class Checkpoints:
     columns: dict[str, str] = field(default_factory=dict)
     ignored_columns: tuple[str, ...] = ()
     note: str = ""
+    height_datum: str | None = None
 
     def __post_init__(self) -> None:
         xy = np.asarray(self.xy, dtype=float)
@@ -246,7 +250,15 @@ def _from_columns(
     declared: tuple[Any, str] | None = None,
     note: str = "",
 ) -> Checkpoints:
+    from .controller_csv import controller_table
+
+    export = controller_table(cols, name)  # an Emlid Flow export: its own columns and CRS
+    if export is not None:
+        cols, declared = export.columns, (export.crs, export.how)
+        note = "; ".join(t for t in (note, export.note) if t)
     cols, used, unknown = _canonical(cols, name)
+    if export is not None:
+        used = {**used, **export.used}
     arr = {
         c: _column(cols[c], f"{name} column {used[c]}") for c in (*_COLUMNS, "z_std") if c in cols
     }
@@ -261,8 +273,9 @@ def _from_columns(
         raise bad_input(f"{name} columns", n, "columns of one length", "check the table")
     xy = np.column_stack([arr["x"], arr["y"]]).reshape(-1, 2)
     return Checkpoints(
-        xy, arr["z"], arr.get("z_std"), resolved, name, sha256, used, tuple(map(str, unknown)), note
-    )
+        xy, arr["z"], arr.get("z_std"), resolved, name, sha256, used, tuple(map(str, unknown)),
+        note, None if export is None else export.height_datum,
+    )  # fmt: skip
 
 
 def layer_columns(path: Path, name: str) -> tuple[dict[str, Any], tuple[Any, str] | None, str]:

@@ -452,6 +452,18 @@ def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str
         )
     if all(logs):
         return {}
+    from .controller_csv import is_controller_csv
+
+    exports = [p for p in paths if is_controller_csv(p)]  # Emlid: ellipsoidal heights
+    if exports and given not in (None, "ellipsoidal"):
+        raise bad_input(
+            field,
+            given,
+            f"ellipsoidal: {Path(exports[0]).name}'s heights are its Ellipsoidal height column",
+            "drop --samples-heights, or convert the other files' z to ellipsoidal heights",
+        )
+    if len(exports) == len(paths):
+        given = "ellipsoidal"
     if all(point_format(p) in ("las", "raster") for p in paths):  # a compound CRS states it
         from terrain.vertical_datum import stated_or_given
 
