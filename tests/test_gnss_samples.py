@@ -122,6 +122,29 @@ def test_rtklib_fixes_become_samples_in_the_map_crs(tmp_path):
     assert "rtk_fixed 48" in note and "rtk_float 12" in note and "antenna height 2 m" in note
 
 
+def test_an_emlid_reach_llh_log_is_the_same_solution_without_its_header(tmp_path):
+    # Emlid Reach writes its position log (.LLH) as RTKLIB's llh rows in GPS time without
+    # the '%' header: the same rows read as the .pos with the header give the same samples.
+    xy = _profile(n_lines=2, step=10.0)
+    h = _surface(*xy.T) + 2.0
+    q = np.where(np.arange(len(h)) % 5 == 0, 2, 1)
+    sdu = np.where(q == 1, 0.02, 0.25)
+    pos = _pos(tmp_path / "p.pos", xy, h, q, sdu)
+    llh = tmp_path / "solution_202607010900.LLH"
+    llh.write_text("".join(ln + "\n" for ln in pos.read_text().splitlines() if ln[:1] != "%"))
+    assert gnss_format(llh) == "rtklib"
+    a, track_a, _ = read_gnss_samples(pos, UTM, 2.0)
+    b, track_b, note = read_gnss_samples(llh, UTM, 2.0)
+    np.testing.assert_array_equal(b.xy, a.xy)
+    np.testing.assert_array_equal(b.z, a.z)
+    np.testing.assert_array_equal(b.extra["t_s"], a.extra["t_s"])  # GPST - 18 s, as the header
+    np.testing.assert_array_equal(track_b, track_a)
+    assert "Emlid Reach .LLH log" in note
+    (tmp_path / "odd.LLH").write_text("% GPST x y z\n2026/07/01 09:00:00.000 1 2 3 1 12\n")
+    with pytest.raises(InputError, match="odd.LLH header"):
+        read_gnss_samples(tmp_path / "odd.LLH", UTM, 2.0)
+
+
 def test_gpx_without_dop_takes_the_kinds_uere_and_its_utm_zone(tmp_path):
     xy = _profile(n_lines=1, step=10.0)
     h = _surface(*xy.T)

@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 #: File suffixes read as GNSS logs (others are sniffed: NMEA loggers write .txt / .log).
-GNSS_SUFFIXES = {".gpx": "gpx", ".nmea": "nmea", ".nma": "nmea", ".pos": "rtklib"}
+GNSS_SUFFIXES = {".gpx": "gpx", ".nmea": "nmea", ".nma": "nmea", ".pos": "rtklib", ".llh": "rtklib"}
 #: Solution kinds whose height errors are taken as independent between fixes.
 INDEPENDENT_KINDS = frozenset({"rtk_fixed"})
 #: The date given to an NMEA log without RMC / ZDA sentences: only relative times are used.
@@ -68,12 +68,15 @@ def gnss_format(path: str | Path) -> str | None:
 def _read(path: Path, fmt: str) -> tuple[Any, str]:
     from factorgraph.field.gpx import read_gpx
     from factorgraph.field.nmea import read_nmea
-    from factorgraph.field.rtklib import read_rtklib
+    from factorgraph.field.rtklib import HEADERLESS, read_rtklib
 
     if fmt == "gpx":
         return read_gpx(path), ""
     if fmt == "rtklib":
-        return read_rtklib(path), ""
+        with path.open(errors="replace") as fh:  # Emlid Reach's .LLH: no RTKLIB header
+            headerless = path.suffix.lower() in HEADERLESS and not fh.readline().startswith("%")
+        note = "an Emlid Reach .LLH log (RTKLIB's llh columns without a header, GPS time)"
+        return read_rtklib(path), note if headerless else ""
     try:
         return read_nmea(path), ""
     except InputError as exc:  # GGA without RMC / ZDA: the map needs relative times only

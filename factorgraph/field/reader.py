@@ -37,7 +37,7 @@ __all__ = ["FIELD_FORMAT", "GPS_SUFFIXES", "MANIFEST", "read_field_log"]
 FIELD_FORMAT = "glacimap-field/1"
 MANIFEST = "survey.json"
 #: GPS file suffix -> format (when ``gps.format`` is not given).
-GPS_SUFFIXES = {".nmea": "nmea", ".nma": "nmea", ".gpx": "gpx", ".pos": "rtklib"}
+GPS_SUFFIXES = {".nmea": "nmea", ".nma": "nmea", ".gpx": "gpx", ".pos": "rtklib", ".llh": "rtklib"}
 _KEYS = {
     "format", "crs", "origin", "seed", "clock_offset_s", "sync_tolerance_s", "lever_arm_m",
     "gps", "odometry", "tilt", "tracks", "camera", "sensors", "stops", "images",

@@ -1,7 +1,8 @@
 """RTKLIB solution files (``.pos``, rnx2rtkp / RTKPOST / RTKNAVI / demo5 output).
 
-``%`` header lines, the last of which names the columns; one solution per data row. Every
-output option of RTKLIB's "solution format" is read:
+``%`` header lines, the last of which names the columns; one solution per data row (Emlid
+Reach's ``.LLH`` position log is RTKLIB's llh layout in GPS time without the header:
+:data:`HEADERLESS`). Every output option of RTKLIB's "solution format" is read:
 
 ==========  ==========================================================  ===================
 positions   header columns after the time                               per-fix 1-sigma
@@ -38,7 +39,14 @@ from terrain.errors import bad_input
 
 from .fixes import GPSFixes
 
-__all__ = ["GPS_UTC_LEAP_S", "LEAP_SECONDS", "Q_KIND", "gps_utc_leap_s", "read_rtklib"]
+__all__ = [
+    "GPS_UTC_LEAP_S",
+    "HEADERLESS",
+    "LEAP_SECONDS",
+    "Q_KIND",
+    "gps_utc_leap_s",
+    "read_rtklib",
+]
 
 #: GPS time minus UTC (s) since 2017-01-01 (IERS Bulletin C: no leap second since).
 GPS_UTC_LEAP_S = 18
@@ -61,6 +69,10 @@ _LAYOUTS = {
     "enu": ("e-baseline(m)", "n-baseline(m)", "u-baseline(m)", *_QS, "sde(m)", "sdn(m)", "sdu(m)"),
 }  # fmt: skip
 _TIME_SYSTEMS = ("GPST", "UTC", "JST")
+#: Files that are RTKLIB solutions without its header, by suffix: Emlid Reach's position
+#: log ``.LLH`` (RTKLIB's llh columns in GPS time; its ``.XYZ`` twin is not taken by suffix,
+#: an ASCII point cloud's suffix too).
+HEADERLESS = {".llh": ("GPST", *_LAYOUTS["llh"])}
 _GPS_EPOCH = calendar.timegm((1980, 1, 6, 0, 0, 0))
 _LEAP_POSIX = tuple(
     (calendar.timegm((*map(int, d.split("-")), 0, 0, 0)), s) for d, s in LEAP_SECONDS
@@ -180,6 +192,8 @@ def read_rtklib(path: str | Path) -> GPSFixes:
     header = [ln for ln in lines if ln.startswith("%")]
     data = [ln for ln in lines if ln.strip() and not ln.startswith("%")]
     cols = header[-1].lstrip("%").split() if header else []
+    if not header and path.suffix.lower() in HEADERLESS:  # Emlid Reach .LLH: GPST, llh
+        cols = list(HEADERLESS[path.suffix.lower()])
     layout = _layout(cols) if cols and cols[0] in _TIME_SYSTEMS else None
     if layout is None:
         raise bad_input(
