@@ -49,6 +49,7 @@ from .along_track import AlongTrackModel, along_track_quadratic
 from .coregister import as_polygons
 from .errors import bad_input, positive_number
 from .grid import Grid, north_up
+from .outline_cover import check_outline_covered
 from .variogram import (
     covariance_sum,
     empirical_variogram,
@@ -269,8 +270,9 @@ def volume_change(
     Raises
     ------
     InputError
-        Density <= 0, an outline that covers no cell of the diff, too few stable cells for
-        the variogram.
+        Density <= 0, an outline that covers no cell of the diff or reaches beyond it by
+        more than :data:`terrain.outline_cover.OUTSIDE_MAX` of its area (clip it first:
+        :func:`terrain.outline_cover.clip_outline`), too few stable cells for the variogram.
     """
     rho, rho_sd = _check_density(density)
     diff = north_up(diff)
@@ -284,6 +286,7 @@ def volume_change(
             f"a polygon over cells of the change grid {tuple(round(b) for b in grid.bounds)}",
             "check the outline's CRS and extent",
         )
+    cover = check_outline_covered(outline, grid)  # a volume of part of it: refused
     dh = np.asarray(diff["dh"].values, float)
     valid = inside & np.isfinite(dh)
     n_filled = int(inside.sum() - valid.sum())
@@ -300,7 +303,7 @@ def volume_change(
     coreg = diff.attrs.get("coregistration", "none")
     co = json.loads(coreg) if coreg not in ("none", "", None) else None
     budget: dict[str, float] = {}
-    details: dict[str, Any] = {}
+    details: dict[str, Any] = {"outline": cover}
     if models is not None:
         method = "gp_posterior"
         model = _along_track_model(along_track)

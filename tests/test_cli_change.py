@@ -19,7 +19,7 @@ import shapely
 from shapely.geometry import box
 from typer.testing import CliRunner
 
-from terrain import Grid, default_outline, default_site, surface_change
+from terrain import Grid, InputError, default_outline, default_site, surface_change
 from terrain.product import terrain_dataset
 from terrain.synthetic import DEFAULT_SITE_BOUNDS
 from terrain.volume import outline_weights
@@ -200,3 +200,57 @@ def test_a_dem_in_geoid_heights_is_carried_to_the_maps_datum(tmp_path):
     assert res.exit_code == 0 and abs(vol["mean_dh_m"]) < 0.01
     res, out = change("a96.tif", "--heights-after", "ellipsoidal")  # contradicts the file
     assert "--heights-after" in str(res.exception) and not out.exists()
+
+
+def test_an_inventory_glacier_is_picked_and_an_outline_beyond_the_dems_refused(epochs, tmp_path):
+    # An RGI-like inventory (GeoPackage, EPSG:4326, an RGIId per glacier): the site's glacier
+    # and two others, one far away and one straddling the maps' east edge. Picked by its ID,
+    # the volume is the same as from the glacier's own file; the whole inventory reaches far
+    # beyond the DEMs: refused, nothing written; clipped on request, said with the area cut.
+    import pyogrio
+    from pyproj import Transformer
+
+    d, outline, _ = epochs
+    to_ll = Transformer.from_crs("EPSG:32608", "EPSG:4326", always_xy=True)
+    w, s, e, n = DEFAULT_SITE_BOUNDS
+    straddling = box(e - 100, s + 100, e + 200, s + 300)
+    polys = [outline, box(w - 5000, s - 5000, w - 4000, s - 4000), straddling]
+    ll = [shapely.transform(p, lambda xy: np.column_stack(to_ll.transform(*xy.T))) for p in polys]
+    inventory = tmp_path / "rgi.gpkg"
+    pyogrio.raw.write(
+        inventory, np.array([shapely.to_wkb(p) for p in ll], dtype=object),
+        [np.array(["RGI60-01.00001", "RGI60-01.00002", "RGI60-01.00003"], dtype=object)],
+        ["RGIId"], geometry_type="Polygon", crs="EPSG:4326",
+    )  # fmt: skip
+    gpkg = _write_polygon(tmp_path / "glacier.gpkg", outline)
+    base = ["change", str(d / "before.nc"), str(d / "after.tif"), "--no-coregister"]
+
+    def change(name, *extra):
+        out = tmp_path / name
+        return runner.invoke(app, [*base, *extra, "--out", str(out)]), out
+
+    res, out = change("own", "--outline", str(gpkg))
+    assert res.exit_code == 0, res.output
+    own = json.loads((out / "volume.json").read_text())
+    res, out = change("picked", "--outline", str(inventory),
+                      "--outline-where", "RGIId = 'RGI60-01.00001'")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    picked = json.loads((out / "volume.json").read_text())
+    assert picked["volume_m3"] == pytest.approx(own["volume_m3"], rel=1e-3)  # via degrees
+    assert any("1 of 3 features: RGIId = 'RGI60-01.00001'" in t for t in picked["notes"])
+    res, out = change("all", "--outline", str(inventory))
+    assert isinstance(res.exception, InputError) and not out.exists()
+    assert "beyond the change grid" in str(res.exception)
+    assert "--clip-outline" in str(res.exception)
+    res, out = change("none", "--outline", str(inventory), "--outline-where", "RGIId = 'x'")
+    assert "selects features" in str(res.exception) and "RGIId" in str(res.exception)
+    res, out = change("bad", "--outline", str(inventory), "--outline-where", "Name = 'x'")
+    assert "OGR SQL WHERE" in str(res.exception) and not out.exists()
+    res, out = change("clipped", "--outline", str(inventory), "--clip-outline",
+                      "--outline-where", "RGIId != 'RGI60-01.00002'")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    cut = 100 * 200 * 200 / (outline.area + straddling.area)  # the straddler's east 200 m
+    note = next(t for t in vol["notes"] if "clipped" in t)
+    assert f"({cut:.1f} %) cut" in note
+    assert vol["area_m2"] > own["area_m2"]  # the straddler's covered part joins

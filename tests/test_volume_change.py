@@ -168,7 +168,16 @@ def test_volume_mass_and_bad_input():
     with pytest.raises(InputError, match="outline"):
         volume_change(d, box(W0 + 500, S0, W0 + 600, S0 + 100))
     with pytest.raises(InputError, match="stable cells"):  # no stable ground left
+        volume_change(d, box(W0, S0, W0 + 100, S0 + 100))
+    # an outline 10 m beyond the grid on every side: 30.6 % of its 14,400 m^2 (by hand)
+    with pytest.raises(InputError, match="outline: .*30.6 % of its 14,400 m.2 beyond the change"):
         volume_change(d, box(W0 - 10, S0 - 10, W0 + 110, S0 + 110))
+    half = box(W0 + 50, S0, W0 + 150, S0 + 100)  # half of it off the grid: clipped, it maps
+    from terrain.outline_cover import clip_outline
+
+    clipped, record = clip_outline(half, Grid.from_dataarray(d))
+    assert record["outside_share"] == pytest.approx(0.5) and clipped.area == pytest.approx(5000)
+    assert volume_change(d, clipped).details["outline"]["outside_grid_m2"] == 0.0
 
 
 def test_tiled_gp_route_is_an_upper_bound():

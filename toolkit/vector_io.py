@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from terrain.errors import bad_input
+from terrain.errors import InputError, bad_input
 
 __all__ = ["read_geometries"]
 
@@ -40,14 +40,41 @@ def _could_be_lonlat(geoms: list) -> bool:
     )
 
 
-def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]:
+def _where(path: Path, field: str, where: str, info: dict) -> tuple[list, str]:
+    """The geometries of the features ``where`` selects and the selection in words."""
+    import pyogrio
+    import shapely
+
+    names = ", ".join(map(str, info.get("fields", []))) or "(none)"
+    try:
+        wkb = pyogrio.raw.read(path, where=where)[2]
+    except Exception as exc:  # pyogrio's FieldError / DataLayerError: the clause
+        raise bad_input(
+            f"{field}-where", where, "an OGR SQL WHERE clause on the file's attributes",
+            f"{path.name}'s attributes: {names} (e.g. \"RGIId = 'RGI60-07.01482'\"); {exc}",
+        ) from exc  # fmt: skip
+    if not len(wkb):
+        raise bad_input(
+            f"{field}-where", where, f"a clause that selects features of {path.name}",
+            f"{path.name}'s attributes: {names}; it has {info['features']} features",
+        )  # fmt: skip
+    return list(shapely.from_wkb(wkb)), f"{len(wkb)} of {info['features']} features: {where}"
+
+
+def read_geometries(
+    path: Path, field: str, crs: Any = None, where: str | None = None
+) -> tuple[list, str]:
     """The geometries of ``path`` (shapely, file order), in ``crs`` when given, and a note
     on how they were read (``"<field>: same CRS"``, ``"... reprojected from EPSG:4326"``,
     ``"... no CRS declared: read in the map's CRS"``), which counts the empty or missing
     geometries left out.
 
+    ``where`` (an OGR SQL WHERE clause, as ``ogr2ogr -where``) keeps the features it selects:
+    one glacier of an inventory (RGI, GLIMS) by its ID.
+
     Raises an ``InputError`` naming ``field`` when the file is missing or does not parse,
-    or when its coordinates look like longitude / latitude for a projected ``crs`` and it
+    when ``where`` does not parse or selects nothing (the message lists the attributes), or
+    when its coordinates look like longitude / latitude for a projected ``crs`` and it
     declares no CRS.
     """
     import shapely
@@ -58,20 +85,30 @@ def read_geometries(path: Path, field: str, crs: Any = None) -> tuple[list, str]
         raise bad_input(field, str(path), "an existing vector file (GeoJSON, GeoPackage, "
                         "Shapefile, WKT...)", "check the path")  # fmt: skip
     declared = None
+    selected = ""
     try:
         if _is_wkt(path):
+            if where:
+                raise bad_input(f"{field}-where", where, "a vector file with attributes",
+                                f"{path.name} is WKT lines: select the lines by hand")  # fmt: skip
             text = path.read_text(encoding="utf-8")
             geoms = [shapely.from_wkt(t) for t in text.splitlines() if t.strip()]
         else:
             import pyogrio
 
             info = pyogrio.read_info(path)
-            wkb = pyogrio.raw.read(path)[2] if info["features"] else []
-            geoms = list(shapely.from_wkb(wkb)) if len(wkb) else []
+            if where:
+                geoms, selected = _where(path, field, where, info)
+            else:
+                wkb = pyogrio.raw.read(path)[2] if info["features"] else []
+                geoms = list(shapely.from_wkb(wkb)) if len(wkb) else []
             declared = CRS.from_user_input(info["crs"]) if info.get("crs") else None
+    except InputError:
+        raise
     except Exception as exc:  # shapely's GEOSException, pyogrio's DataSourceError, ...
         raise bad_input(field, path.name, "a vector file GDAL reads, or WKT lines",
                         f"the file does not parse: {exc}") from exc  # fmt: skip
+    field = f"{field} ({selected})" if selected else field
     kept = [g for g in geoms if g is not None and not g.is_empty]
     left = (
         f" ({len(geoms) - len(kept)} empty geometries left out)" if len(kept) < len(geoms) else ""

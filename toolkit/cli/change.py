@@ -75,14 +75,15 @@ def read_dem(path: Path, field: str):
     return xr.Dataset(data, coords=grid.coords(), attrs=attrs)
 
 
-def read_polygons(path: Path, field: str, crs: Any) -> tuple[Any, str]:
+def read_polygons(path: Path, field: str, crs: Any, where: str | None = None) -> tuple[Any, str]:
     """Polygons of a vector file (GeoPackage, GeoJSON, Shapefile) merged, in ``crs``; a note
-    says whether they were reprojected (:func:`toolkit.vector_io.read_geometries`)."""
+    says whether they were reprojected (:func:`toolkit.vector_io.read_geometries`); ``where``
+    an OGR SQL clause selecting the features (an inventory's one glacier)."""
     import shapely
 
     from ..vector_io import read_geometries
 
-    geoms, note = read_geometries(path, field, crs)
+    geoms, note = read_geometries(path, field, crs, where=where)
     geoms = [g for g in geoms if g.area > 0]
     if not geoms:
         raise bad_input(field, str(path), "at least one polygon", "draw the outline as polygons")
@@ -96,7 +97,24 @@ def change_command(
     after: Annotated[
         Path, typer.Argument(help="Later DEM: a glacimap product folder, NetCDF or GeoTIFF.")
     ],
-    outline: Annotated[Path, typer.Option(help="Glacier outline (GeoPackage / GeoJSON).")],
+    outline: Annotated[
+        Path, typer.Option(help="Glacier outline(s) (GeoPackage, GeoJSON, Shapefile...).")
+    ],
+    outline_where: Annotated[
+        str | None,
+        typer.Option(
+            help="Keep the outline features this OGR SQL WHERE clause selects, e.g. "
+            "\"RGIId = 'RGI60-07.01482'\" for one glacier of an inventory file."
+        ),
+    ] = None,
+    clip_outline: Annotated[
+        bool,
+        typer.Option(
+            help="Clip the outline to the two DEMs' common grid (said, with the area cut). "
+            "Without it an outline reaching beyond the grid is refused: the volume of the "
+            "part the DEMs cover is not the glacier's."
+        ),
+    ] = False,
     stable: Annotated[
         Path | None, typer.Option(help="Stable ground polygons; default: outside the outline.")
     ] = None,
@@ -155,6 +173,7 @@ def change_command(
 
     from terrain import difference, volume_change
     from terrain.dem_projection import change_crs
+    from terrain.outline_cover import clip_outline as clip_to_grid
 
     from ..change_inputs import locate_product
     from ..change_report import (
@@ -174,7 +193,7 @@ def change_command(
     a = read_dem(where_a.raster, "AFTER")
     a, note_h = same_heights(b, a, heights_before, heights_after)  # one vertical datum
     crs, _ = change_crs(b, a)  # the CRS dh is mapped in (a DEM in degrees is projected)
-    glacier, note_o = read_polygons(outline, "--outline", crs)
+    glacier, note_o = read_polygons(outline, "--outline", crs, where=outline_where)
     stable_geom, note_s = (None, "")
     if stable is not None:
         stable_geom, note_s = read_polygons(stable, "--stable", crs)
@@ -192,6 +211,12 @@ def change_command(
         )
     diff = difference(b, a, coregister=coregister, stable=stable_geom, outline=glacier)
     grid = Grid.from_dataarray(diff)
+    if clip_outline:  # said in the notes: the volume is then the covered part's
+        glacier, cut = clip_to_grid(glacier, grid, "--outline")
+        note_o = (
+            f"{note_o}; clipped to the DEMs' common grid: {cut['outside_grid_m2']:,.0f} of "
+            f"{cut['area_m2']:,.0f} m^2 ({100 * cut['outside_share']:.1f} %) cut"
+        )
     mask = None if stable_geom is None else stable_mask(grid, stable_geom)[0]
     vc = volume_change(diff, glacier, (density, density_std), models=models, stable=mask, seed=seed)
     note = f"{vc.details['method_note']}. Route {route_reason}"  # the HTML report shows it
