@@ -89,8 +89,20 @@ def test_a_file_without_header_is_said_to_have_none(samples_csv, tmp_path):
     pd.read_csv(samples_csv)[["x", "y", "z"]].to_csv(bare, index=False, header=False)
     res, text = _invoke("reconstruct", str(bare), "--crs", CRS, "--out", str(tmp_path / "o"))
     assert isinstance(res.exception, InputError)
-    assert "bare.csv header" in text and "the file has none" in text
-    assert "add a first line such as x,y,z" in text
+    assert "bare.csv header" in text and "so the file has none" in text
+    assert "add a first line naming the columns in the file's order, e.g. x,y,z" in text
+    # a controller's PNEZD export: a point name and a code around the numbers
+    pnezd = tmp_path / "pnezd.csv"
+    df = pd.read_csv(samples_csv)
+    rows = [f"CP{i},{r.y:.3f},{r.x:.3f},{r.z:.3f},STAKE" for i, r in enumerate(df.itertuples())]
+    pnezd.write_text("\n".join(rows) + "\n")
+    res, text = _invoke("reconstruct", str(pnezd), "--crs", CRS, "--out", str(tmp_path / "o"))
+    assert isinstance(res.exception, InputError) and "3 numbers of 5 cells" in text
+    assert "name,northing,easting,elevation,code for PNEZD" in text
+    pnezd.write_text("name,northing,easting,elevation,code\n" + pnezd.read_text())
+    res, text = _invoke("reconstruct", str(pnezd), "--crs", CRS, "--resolution", "50",
+                        "--out", str(tmp_path / "o"))  # fmt: skip
+    assert res.exit_code == 0, text
 
 
 def test_products_name_the_samples_file_and_its_hash(samples_csv, tmp_path):

@@ -166,14 +166,16 @@ def _canonical(cols: dict[str, Any], name: str) -> tuple[dict[str, Any], dict[st
         else:
             out[canon], used[canon] = values, header
     missing = [c for c in _COLUMNS if c not in out]
-    if missing and _all_numbers(list(cols)):  # the first line is data: no header row
+    numbers = sum(_all_numbers([c]) for c in cols)
+    if missing and (_all_numbers(list(cols)) or numbers >= 3):  # the first line is data
         raise bad_input(
             f"{name} header",
             list(cols),
-            "a header row naming the columns (the first line holds only numbers, so the "
-            "file has none)",
-            "add a first line such as x,y,z (or easting,northing,elevation) in the file's "
-            "column order",
+            f"a header row naming the columns (the first line holds {numbers} numbers of "
+            f"{len(cols)} cells: data, so the file has none; a controller's PNEZD / PENZD "
+            "export has no header)",
+            "add a first line naming the columns in the file's order, e.g. x,y,z, or "
+            "name,northing,easting,elevation,code for PNEZD (name and code are kept out)",
         )
     if missing:
         hints = []
