@@ -34,7 +34,13 @@ import numpy as np
 
 from .errors import bad_input
 
-__all__ = ["is_vertical_crs_key", "vertical_crs_key", "vertical_crs_name", "vertical_undulation"]
+__all__ = [
+    "is_vertical_crs_key",
+    "undulation_of",
+    "vertical_crs_key",
+    "vertical_crs_name",
+    "vertical_undulation",
+]
 
 #: How to get a grid PROJ names (the fix of a missing-grid error).
 _GRID_FIX = (
@@ -197,6 +203,15 @@ def vertical_undulation(lon_deg: Any, lat_deg: Any, key: str, field: str) -> np.
     lon = np.atleast_1d(np.asarray(lon_deg, float))
     lat = np.atleast_1d(np.asarray(lat_deg, float))
     op = _operation(key, field, lon, lat)
+    return undulation_of(
+        op, lon, lat, field, vertical_crs_name(key), "check that the datum is the site's country's"
+    )
+
+
+def undulation_of(op: Any, lon: np.ndarray, lat: np.ndarray, field: str, what: str, fix: str):
+    """The ellipsoidal height of ``H = 0`` by the PROJ operation ``op`` (WGS 84 + heights
+    -> 3-D) at ``lon, lat`` (degrees); a position outside its grid (PROJ gives inf) is an
+    :class:`InputError` naming ``what`` there and ``fix``."""
     _, _, n = op.transform(lon, lat, np.zeros_like(lon), errcheck=False)
     n = np.asarray(n, float)
     bad = ~np.isfinite(n) | (np.abs(n) > 200.0)  # outside the grid: PROJ gives inf
@@ -204,8 +219,8 @@ def vertical_undulation(lon_deg: Any, lat_deg: Any, key: str, field: str) -> np.
         i = int(np.argmax(bad))
         raise bad_input(
             field,
-            f"{vertical_crs_name(key)} at lon {lon[i]:.6f}, lat {lat[i]:.6f}",
-            "a position its geoid grid covers",
-            "check that the datum is the one of the site's country",
+            f"{what} at lon {lon[i]:.6f}, lat {lat[i]:.6f}",
+            "a position the geoid grid covers",
+            fix,
         )
     return n

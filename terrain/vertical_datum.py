@@ -32,6 +32,7 @@ import numpy as np
 from .errors import bad_input
 from .vertical_crs import (
     is_vertical_crs_key,
+    undulation_of,
     vertical_crs_key,
     vertical_crs_name,
     vertical_undulation,
@@ -184,18 +185,7 @@ def geoid_height(
         if geoid not in GEOIDS:
             return vertical_undulation(lon, lat, geoid, field)
     grid = geoid_grid(geoid, field)
-    _, _, n = _undulation(str(grid)).transform(lon, lat, np.zeros_like(lon), errcheck=False)
-    n = np.asarray(n, float)
-    bad = ~np.isfinite(n) | (np.abs(n) > 200.0)  # outside the grid: PROJ gives inf
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise bad_input(
-            field,
-            f"{geoid} at lon {lon[i]:.6f}, lat {lat[i]:.6f}",
-            "a position the geoid grid covers",
-            f"check the grid file {grid}",
-        )
-    return n
+    return undulation_of(_undulation(str(grid)), lon, lat, field, geoid, f"check the grid {grid}")
 
 
 def ellipsoidal_height(

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-import rasterio
+from _rasters import write_array
 from pyproj import Transformer
 from rasterio.transform import from_origin
 from typer.testing import CliRunner
@@ -33,12 +33,8 @@ def _n(lon, lat):
 
 @pytest.fixture()
 def site(tmp_path):
-    dem = tmp_path / "dem_egm96.tif"
-    with rasterio.open(
-        dem, "w", driver="GTiff", height=50, width=50, count=1, dtype="float64",
-        crs="EPSG:32608+5773", transform=from_origin(500000, 6600500, 10, 10),
-    ) as dst:  # fmt: skip
-        dst.write(np.full((1, 50, 50), 100.0))
+    dem = write_array(tmp_path / "dem_egm96.tif", np.full((50, 50), 100.0),
+                      from_origin(500000, 6600500, 10, 10), "EPSG:32608+5773")  # fmt: skip
     lon, lat = Transformer.from_crs("EPSG:32608", "EPSG:4326", always_xy=True).transform(*XY.T)
     h = 100.0 + _n(lon, lat)  # ellipsoidal heights of the DEM's surface
     geo = tmp_path / "cps_4979.csv"  # lon, lat, h: a 3-D geographic CRS states ellipsoidal

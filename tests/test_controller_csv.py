@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rasterio
+from _rasters import write_array
 from pyproj import Transformer
 from rasterio.transform import from_origin
 from typer.testing import CliRunner
@@ -124,11 +125,8 @@ def test_a_dem_in_egm96_is_certified_against_an_emlid_export(svalbard, tmp_path)
     xs = 499990 + 20 * np.arange(52) + 10
     ys = 8701010 - 20 * np.arange(52) - 10
     xx, yy = np.meshgrid(xs, ys)
-    with rasterio.open(
-        dem, "w", driver="GTiff", height=52, width=52, count=1, dtype="float64",
-        crs="EPSG:32633+5773", transform=from_origin(499990, 8701010, 20, 20),
-    ) as dst:  # fmt: skip
-        dst.write(200.0 + 0.02 * (xx - 500000) - big_n.mean(), 1)
+    write_array(dem, 200.0 + 0.02 * (xx - 500000) - big_n.mean(),
+                from_origin(499990, 8701010, 20, 20), "EPSG:32633+5773")  # fmt: skip
     c = certify(dem, path, n_boot=50)
     assert (c["checkpoints"]["heights"]["dem"], c["checkpoints"]["heights"]["checkpoints"]) == (
         "egm96",

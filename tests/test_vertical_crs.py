@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import rasterio
+from _rasters import write_array
 from pyproj import Transformer
 from rasterio.transform import from_origin
 from typer.testing import CliRunner
@@ -105,12 +106,8 @@ def test_field_gps_heights_above_nn2000_are_carried_to_the_ellipsoid(nn2000_grid
 def norwegian_site(tmp_path, nn2000_grid):
     """A flat 100 m DEM in NN2000 heights (EPSG:25833+5941) and GNSS checkpoints on the
     ellipsoid (100 m + N)."""
-    dem = tmp_path / "dem_nn2000.tif"
-    with rasterio.open(
-        dem, "w", driver="GTiff", height=50, width=50, count=1, dtype="float64",
-        crs="EPSG:25833+5941", transform=from_origin(500000, 6800500, 10, 10),
-    ) as dst:  # fmt: skip
-        dst.write(np.full((1, 50, 50), 100.0))
+    dem = write_array(tmp_path / "dem_nn2000.tif", np.full((50, 50), 100.0),
+                      from_origin(500000, 6800500, 10, 10), "EPSG:25833+5941")  # fmt: skip
     xy = np.array([[500100, 6800100], [500200, 6800200], [500300, 6800300],
                    [500150, 6800400], [500250, 6800050], [500420, 6800440]], float)  # fmt: skip
     lon, lat = Transformer.from_crs("EPSG:25833", "EPSG:4326", always_xy=True).transform(*xy.T)
@@ -181,11 +178,7 @@ def test_change_carries_a_national_dem_to_the_maps_datum(nn2000_grid, tmp_path):
     )
     lon, lat = Transformer.from_crs(g.crs, "EPSG:4326", always_xy=True).transform(xx, yy)
     n = field_n(lon, lat)
-    with rasterio.open(
-        tmp_path / "a.tif", "w", driver="GTiff", height=g.ny, width=g.nx, count=1,
-        dtype="float64", crs="EPSG:25833+5941", transform=g.transform,
-    ) as dst:  # fmt: skip
-        dst.write(z - n, 1)
+    write_array(tmp_path / "a.tif", z - n, g.transform, "EPSG:25833+5941")
     outline = tmp_path / "glacier.gpkg"
     pyogrio.raw.write(
         outline, np.array([shapely.to_wkb(box(420400, 6834200, 421200, 6834700))], object),
