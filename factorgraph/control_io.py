@@ -15,6 +15,7 @@ import numpy as np
 from terrain.errors import bad_input
 
 from .control import ControlPoints
+from .field.controller_csv import controller_table, is_controller_export
 from .field.table import header_key, read_text_table, sidecar_crs
 
 __all__ = ["ALIASES", "NOTE_COLUMNS", "control_from_rows", "read_control"]
@@ -73,7 +74,9 @@ def read_control(
     Parameters
     ----------
     path : path
-        CSV with a header: ``id, x, y, z`` and the 1-sigma columns ``sigma_x, sigma_y,
+        An Emlid Flow export (``Name``, its projected pair, ``Ellipsoidal height``, the RMS
+        columns as the 1-sigmas: :mod:`.field.controller_csv`), or a CSV with a header: ``id,
+        x, y, z`` and the 1-sigma columns ``sigma_x, sigma_y,
         sigma_z`` (or ``sigma_h`` for both horizontal axes, or one ``sigma`` for all);
         aliases such as ``name, easting, northing, elevation, lat, lon`` (:data:`ALIASES`);
         optional ``target_id`` (track id of a marked target) and ``crs``; free-text
@@ -95,7 +98,51 @@ def read_control(
     if not path.is_file():
         raise bad_input("control file", str(path), "an existing CSV file", "check the path")
     table = read_text_table(path, "control file")
+    if is_controller_export(table.header):  # an Emlid Flow export: its own columns and CRS
+        return _from_export(table.columns(), path, crs, sigma_m, centring_sigma_m)
     return control_from_rows([table.header, *table.rows], path, crs, sigma_m, centring_sigma_m)
+
+
+def _from_export(
+    cols: dict[str, list[str]], path: Path, crs: Any, sigma_m: Any, centring_sigma_m: float
+) -> ControlPoints:
+    """Control points from a controller export (:mod:`.field.controller_csv`): ``Name`` the
+    id, the export's position and ellipsoidal height, ``Easting / Northing / Elevation RMS``
+    the per-axis 1-sigma (``sigma_m`` where a cell is empty)."""
+    from pyproj import CRS
+
+    export = controller_table(cols, path.name)
+    if "id" not in export.point:
+        raise bad_input(f"{path.name} header", list(cols), "a Name column too", "export it")
+    if crs is not None and not CRS.from_user_input(crs).equals(export.crs):
+        raise bad_input(
+            "control crs", crs, f"the export's own ({export.crs.name}, {export.how})",
+            "drop crs=; the export states its coordinate system",
+        )  # fmt: skip
+    c = export.columns
+    n = len(export.point["id"])
+    sigma = np.column_stack(
+        [export.point.get(k, np.full(n, np.nan)) for k in ("sigma_x", "sigma_y")]
+        + [c.get("z_std", np.full(n, np.nan))]
+    )
+    if sigma_m is not None:
+        sigma = np.where(
+            np.isfinite(sigma), sigma, np.broadcast_to(np.asarray(sigma_m, float), (n, 3))
+        )
+    if not np.isfinite(sigma).all():
+        i = int(np.argmax(~np.isfinite(sigma).all(1)))
+        raise bad_input(
+            f"{path.name} line {i + 2} RMS", sigma[i].tolist(),
+            "the export's Easting / Northing / Elevation RMS", "pass sigma_m=",
+        )  # fmt: skip
+    notes = {
+        k: v for k, v in ((h.strip().lower(), v) for h, v in cols.items()) if k in NOTE_COLUMNS
+    }
+    return ControlPoints(
+        np.array(export.point["id"]), np.column_stack([c["x"], c["y"], c["z"]]), sigma,
+        export.crs.to_string(), np.full(n, -1, int), centring_sigma_m, source=path.name,
+        notes=notes,
+    )  # fmt: skip
 
 
 def control_from_rows(

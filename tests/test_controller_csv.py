@@ -1,4 +1,4 @@
-"""Survey points exported by Emlid Flow / ReachView 3 (``toolkit.controller_csv``).
+"""Survey points exported by Emlid Flow / ReachView 3 (``factorgraph.field.controller_csv``).
 
 The header is Emlid Flow's survey export as published (Name, Code, ..., CS name); the rows are
 made here: positions on a UTM 33N site (Svalbard's latitude band), the geographic pair from
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import rasterio
 from _rasters import write_array
-from pyproj import Transformer
+from pyproj import CRS, Transformer
 from rasterio.transform import from_origin
 from typer.testing import CliRunner
 
@@ -146,3 +146,25 @@ def test_cli_reconstruct_maps_an_emlid_export(svalbard, tmp_path):
     with rasterio.open(out / "elevation.tif") as src:
         assert src.crs.to_epsg() == 32633
         assert src.tags()["vertical_datum"].startswith("ellipsoidal height above the WGS 84")
+
+
+def test_ground_control_from_an_emlid_export_equals_the_plain_table(svalbard, tmp_path):
+    # The same points as glacimap's own control table (id, x, y, z, sigma_x/y/z, crs): the
+    # same ControlPoints; the export's CS and a contradicting crs= refused.
+    from factorgraph.control_io import read_control
+
+    path, e, n, h, rms = svalbard
+    ctrl = read_control(path)
+    plain = tmp_path / "gcp.csv"
+    lines = ["id,x,y,z,sigma_x,sigma_y,sigma_z,crs"] + [
+        f"P{i},{e[i]:.3f},{n[i]:.3f},{h[i]:.3f},0.010,0.010,{rms[i]:.3f},EPSG:32633"
+        for i in range(len(e))
+    ]
+    plain.write_text("\n".join(lines) + "\n")
+    ref = read_control(plain)
+    np.testing.assert_array_equal(ctrl.ids, ref.ids)
+    np.testing.assert_allclose(ctrl.xyz, ref.xyz, atol=1e-9)
+    np.testing.assert_allclose(ctrl.sigma, ref.sigma, atol=1e-9)
+    assert CRS(ctrl.crs).equals(CRS(ref.crs))
+    with pytest.raises(InputError, match="control crs.*the export's own"):
+        read_control(path, crs="EPSG:32632")

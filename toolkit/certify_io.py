@@ -252,7 +252,7 @@ def _from_columns(
     declared: tuple[Any, str] | None = None,
     note: str = "",
 ) -> Checkpoints:
-    from .controller_csv import controller_table
+    from factorgraph.field.controller_csv import controller_table
 
     export = controller_table(cols, name)  # an Emlid Flow export: its own columns and CRS
     if export is not None:

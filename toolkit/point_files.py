@@ -31,6 +31,7 @@ __all__ = [
     "VECTOR_SUFFIXES",
     "VectorPoints",
     "check_metres",
+    "is_controller_csv",
     "point_classes_option",
     "point_format",
     "read_control_layer",
@@ -62,6 +63,24 @@ def point_format(path: str | Path) -> str | None:
     if suffix in RASTER_SUFFIXES:
         return "raster"
     return "vector" if suffix in VECTOR_SUFFIXES else None
+
+
+def is_controller_csv(path: str | Path) -> bool:
+    """Whether the file ``path`` is a controller export's CSV (a GNSS log, cloud, layer or
+    Parquet table is not; a table the reader refuses is said where it is read)."""
+    from factorgraph.field.controller_csv import is_controller_export
+    from factorgraph.field.table import read_text_table
+    from terrain.errors import InputError
+
+    from .gnss_samples import gnss_format
+
+    path = Path(path)
+    if point_format(path) or gnss_format(path) or path.suffix.lower() == ".parquet":
+        return False
+    try:
+        return is_controller_export(read_text_table(path, "SAMPLES").header)
+    except InputError:
+        return False
 
 
 def point_classes_option(text: str | None) -> tuple[int, ...] | None:

@@ -452,7 +452,7 @@ def samples_height_attrs(paths: list[str | Path], given: str | None) -> dict[str
         )
     if all(logs):
         return {}
-    from .controller_csv import is_controller_csv
+    from .point_files import is_controller_csv
 
     exports = [p for p in paths if is_controller_csv(p)]  # Emlid: ellipsoidal heights
     if exports and given not in (None, "ellipsoidal"):

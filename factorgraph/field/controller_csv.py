@@ -1,5 +1,6 @@
 """Survey points as a GNSS controller app exports them (Emlid Flow / ReachView 3), read as
-what they are.
+what they are: samples and checkpoints (``toolkit.certify_io``), ground control
+(:mod:`factorgraph.control_io`: ``Name`` and ``Easting / Northing RMS`` too).
 
 Emlid's Reach receivers are the low-cost RTK rovers glaciologists carry, and their app's
 CSV export holds each point twice: projected (``Easting, Northing, Elevation`` in the
@@ -29,20 +30,13 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from terrain.errors import bad_input
 
-__all__ = [
-    "EMLID_COLUMNS",
-    "ControllerTable",
-    "controller_table",
-    "is_controller_csv",
-    "is_controller_export",
-]
+__all__ = ["EMLID_COLUMNS", "ControllerTable", "controller_table", "is_controller_export"]
 
 #: The headers that mark an Emlid Flow / ReachView 3 survey export (lower case).
 EMLID_COLUMNS = ("easting", "northing", "longitude", "latitude", "ellipsoidal height")
@@ -68,6 +62,9 @@ class ControllerTable:
         Which header became ``x, y, z, z_std``.
     height_datum : str
         ``"ellipsoidal"``: what the heights are above.
+    point : dict
+        What a control point needs besides: ``id`` (``Name``), ``sigma_x``, ``sigma_y``
+        (``Easting RMS``, ``Northing RMS``, m) where the export has them.
     """
 
     columns: dict[str, Any]
@@ -76,30 +73,13 @@ class ControllerTable:
     note: str
     used: dict[str, str] = field(default_factory=dict)
     height_datum: str = "ellipsoidal"
+    point: dict[str, Any] = field(default_factory=dict)
 
 
 def is_controller_export(headers: Any) -> bool:
     """Whether ``headers`` are an Emlid Flow / ReachView 3 export's (case-insensitive)."""
     keys = {str(h).strip().lower() for h in headers}
     return all(c in keys for c in EMLID_COLUMNS)
-
-
-def is_controller_csv(path: str | Path) -> bool:
-    """Whether the file ``path`` is a controller export's CSV (a GNSS log, cloud, layer or
-    Parquet table is not; a table the reader refuses is said where it is read)."""
-    from factorgraph.field.table import read_text_table
-    from terrain.errors import InputError
-
-    from .gnss_samples import gnss_format
-    from .point_files import point_format
-
-    path = Path(path)
-    if point_format(path) or gnss_format(path) or path.suffix.lower() == ".parquet":
-        return False
-    try:
-        return is_controller_export(read_text_table(path, "SAMPLES").header)
-    except InputError:
-        return False
 
 
 def _cells(cols: dict[str, Any], key: str) -> tuple[str, list[Any]] | None:
@@ -183,6 +163,14 @@ def controller_table(cols: dict[str, Any], name: str) -> ControllerTable | None:
     rms = _cells(cols, "elevation rms")
     if rms is not None:
         out["z_std"], used["z_std"] = _numbers(rms[1], rms[0], name) * factor, rms[0]
+    point: dict[str, Any] = {}
+    name_col = _cells(cols, "name")
+    if name_col is not None:
+        point["id"] = [str(v).strip() for v in name_col[1]]
+    for key, axis in (("easting rms", "sigma_x"), ("northing rms", "sigma_y")):
+        found = _cells(cols, key)
+        if found is not None:
+            point[axis] = _numbers(found[1], found[0], name) * factor
     status = _cells(cols, "solution status")
     counts = Counter(str(v).strip().upper() or "(none)" for v in (status[1] if status else []))
     for header, values in cols.items():  # the rest, under their own names
@@ -204,4 +192,4 @@ def controller_table(cols: dict[str, Any], name: str) -> ControllerTable | None:
             + " (all kept, each with its own RMS)"
         )
     how = f"Emlid export's {'CS name' if metric else 'Longitude, Latitude'}"
-    return ControllerTable(out, crs, how, "; ".join(parts), used)
+    return ControllerTable(out, crs, how, "; ".join(parts), used, point=point)
