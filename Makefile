@@ -52,6 +52,7 @@ bench: setup
 	$(BIN)/python benchmarks/gnss_heights.py --out benchmarks/results/gnss_heights.json
 	$(BIN)/python benchmarks/point_cloud.py --out benchmarks/results/point_cloud.json
 	$(BIN)/python benchmarks/dsm_voids.py --out benchmarks/results/dsm_voids.json
+	$(BIN)/python benchmarks/void_fill.py --out benchmarks/results/void_fill.json
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

@@ -55,6 +55,7 @@ from .variogram import (
     empirical_variogram,
     fit_variogram,
 )
+from .void_fill import hypsometric_fill
 
 __all__ = ["VolumeChange", "gp_integral", "outline_weights", "volume_change"]
 
@@ -292,10 +293,12 @@ def volume_change(
     n_filled = int(inside.sum() - valid.sum())
     if not valid.any():
         raise bad_input("dh", "no finite dh inside the outline", "data on the glacier", "")
-    mean_dh = float(np.sum(W[valid] * dh[valid]) / W[valid].sum())
-    # Cells inside without dh take the mean dh of the outline (counted in n_cells_filled).
-    volume = float(np.sum(W[valid] * dh[valid]) + mean_dh * W[inside & ~valid].sum())
+    # Cells inside without dh: the mean dh of their elevation band (McNabb et al. 2019),
+    # counted in n_cells_filled, the fill's 1-sigma in the budget (terrain.void_fill).
+    filled, fill = hypsometric_fill(dh, _band_elevation(diff), W, inside)
     area = float(W.sum())
+    volume = float(np.sum(W[inside] * filled[inside]))
+    mean_dh = volume / area
     std = (
         np.asarray(diff["dh_std"].values, float) if "dh_std" in diff else np.full(dh.shape, np.nan)
     )
@@ -335,10 +338,9 @@ def volume_change(
         details["stable_cells"] = int(st.sum())
     if co is not None:
         budget["coregistration_bias"] = float(co["vertical_bias_std_m"]) * area
-    if n_filled:
-        # a filled cell's dh is unknown within the spread of dh on the glacier: counted,
-        # fully correlated (conservative)
-        budget["filled_cells"] = float(np.nanstd(dh[valid]) * W[inside & ~valid].sum())
+    if n_filled:  # a filled cell's dh is unknown within its band's spread (void_fill)
+        budget["filled_cells"] = fill["fill_std_m3"]
+        details["void_fill"] = fill
     vol_sd = float(np.sqrt(sum(v**2 for v in budget.values())))
     mass = rho * volume
     mass_sd = float(np.hypot(rho * vol_sd, volume * rho_sd))
@@ -373,6 +375,17 @@ def volume_change(
         n_cells_filled=n_filled,
         details=details,
     )
+
+
+def _band_elevation(diff: Any) -> np.ndarray:
+    """The elevation a void's band is read from: the earlier surface, the later one where
+    the earlier is a void too, NaN where neither is known."""
+    shape = diff["dh"].shape
+    z = [np.asarray(diff[k].values, float) for k in ("elevation_before", "elevation_after")
+         if k in diff]  # fmt: skip
+    if not z:
+        return np.full(shape, np.nan)
+    return z[0] if len(z) == 1 else np.where(np.isfinite(z[0]), z[0], z[1])
 
 
 def _along_track_model(along_track: Any) -> AlongTrackModel | None:
