@@ -192,11 +192,14 @@ def empirical_variogram(
 
 def fit_variogram(lags: np.ndarray, gamma: np.ndarray, counts: np.ndarray) -> SphericalVariogram:
     """Nugget + two spherical models by weighted least squares (``scipy.optimize.curve_fit``,
-    weights ~ sqrt(pair counts)); ranges bounded to (first lag, 4 x last lag)."""
+    weights ~ sqrt(pair counts)); ranges bounded to (first lag, 4 x last lag). Semivariances
+    that are all 0 (two DEMs that differ by a constant there) give the zero variogram."""
     from scipy.optimize import curve_fit
 
     top = float(np.max(gamma))
     hmin, hmax = float(lags[0]), float(lags[-1])
+    if not top > 0.0:  # stable ground without any variation (DEMs equal but for a constant)
+        return SphericalVariogram(0.0, (0.0, 0.0), (hmin, max(hmax, hmin)), lags, gamma, counts)
 
     def model(h, n, s1, a1, s2, a2):
         return SphericalVariogram(n, (s1, s2), (a1, a2))(h)

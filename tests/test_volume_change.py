@@ -277,3 +277,13 @@ def test_along_track_term_in_the_budget(fitted):
     assert "along-track term NOT in the 1-sigma" in v0.details["method_note"]
     with pytest.raises(InputError, match="along_track"):
         volume_change(d, outline, models=(gpt, gpt), along_track="yes")
+
+
+def test_a_constant_difference_has_the_zero_variogram():
+    # Two DEMs equal but for a constant on stable ground: every semivariance is 0. The fit's
+    # bounds used to collapse (scipy: "each lower bound must be strictly less than each upper
+    # bound") and `glacimap change` stopped with a traceback.
+    lags = np.array([10.0, 20.0, 40.0, 80.0])
+    v = fit_variogram(lags, np.zeros(4), np.full(4, 100))
+    assert v.nugget == 0.0 and v.sills == (0.0, 0.0)
+    assert float(np.max(v(np.array([0.0, 50.0, 500.0])))) == 0.0

@@ -44,7 +44,8 @@ def write_change_cog(diff: Any, path: str | os.PathLike) -> Path:
 
 def write_volume_tables(vc: VolumeChange, json_path: Path, csv_path: Path, **extra: Any) -> None:
     """``volume.json`` (everything, with ``extra``) and ``volume.csv`` (quantity, value,
-    1-sigma, unit; one row per budget source)."""
+    1-sigma, unit; one row per budget source, and the ``mass_balance`` of ``extra``:
+    :func:`terrain.mass_balance.mass_balance`)."""
     payload = {**vc.to_dict(), **extra}
     with atomic_path(json_path) as tmp:
         tmp.write_text(json.dumps(payload, indent=2, default=lambda o: np.asarray(o).tolist()))
@@ -57,6 +58,13 @@ def write_volume_tables(vc: VolumeChange, json_path: Path, csv_path: Path, **ext
         ("density", *vc.density_kg_m3, "kg m-3"),
         ("independent_cells_sigma", "", vc.independent_std_m3, "m3"),
     ]
+    mb = extra.get("mass_balance") or {}
+    if mb:
+        rows.append(("specific_mass_balance", mb["specific_mwe"], mb["specific_std_mwe"], "m w.e."))
+    if "rate_mwe_a" in mb:
+        rows.append(("mass_balance_rate", mb["rate_mwe_a"], mb["rate_std_mwe_a"], "m w.e. a-1"))
+        rows.append(("dh_dt", mb["dhdt_m_a"], mb["dhdt_std_m_a"], "m a-1"))
+        rows.append(("period", mb["years"], 0.0, "a"))
     rows += [(f"budget_{k}", "", v, "m3") for k, v in vc.budget_m3.items()]
     with atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
@@ -181,9 +189,11 @@ def write_change_report(
     profile: list[dict[str, float]] | None = None,
     title: str = "glacimap glacier change",
     breaklines: Mapping[str, Any] | None = None,
+    balance: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write the HTML change report (self-contained: figures are data URIs); ``breaklines``
-    (:func:`epoch_breaklines`) adds the lines each epoch's map was fitted with."""
+    (:func:`epoch_breaklines`) adds the lines each epoch's map was fitted with, ``balance``
+    (:func:`terrain.mass_balance.mass_balance`) the specific mass balance."""
     import jinja2
 
     diff = north_up(diff)
@@ -210,6 +220,7 @@ def write_change_report(
         grid=grid,
         attrs=diff.attrs,
         vc=vc,
+        balance=balance or {},
         budget=budget,
         total_var=max(sum(v * v for _, v in budget), 1e-300),
         coreg=coreg,

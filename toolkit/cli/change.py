@@ -154,6 +154,13 @@ def change_command(
     heights_after: Annotated[
         str | None, typer.Option(help="The same for AFTER; it is carried to BEFORE's datum.")
     ] = None,
+    dates: Annotated[
+        tuple[str, str] | None,
+        typer.Option(
+            help="BEFORE's and AFTER's survey dates (ISO, e.g. --dates 2015-08-01 2024-08-20): "
+            "the mass balance per year (m w.e. a^-1) and dh/dt beside the period's."
+        ),
+    ] = None,
     density: Annotated[float, typer.Option(help="Volume-to-mass density, kg m^-3.")] = 850.0,
     density_std: Annotated[float, typer.Option(help="1-sigma of the density.")] = 60.0,
     seed: Annotated[int, typer.Option(help="Seed of the variogram's pair subsample.")] = 0,
@@ -173,6 +180,7 @@ def change_command(
 
     from terrain import difference, volume_change
     from terrain.dem_projection import change_crs
+    from terrain.mass_balance import mass_balance, survey_years
     from terrain.outline_cover import clip_outline as clip_to_grid
 
     from ..change_inputs import locate_product
@@ -199,6 +207,8 @@ def change_command(
         stable_geom, note_s = read_polygons(stable, "--stable", crs)
     # every check before anything is written: bad input leaves --out untouched
     _check_density((density, density_std))
+    if dates is not None:
+        survey_years(dates)
     models, route_reason, gp_notes = _gp_route(b, a, where_b, where_a, prior_before, prior_after)
     route = "gp_structure" if models is not None else "variogram"
     if coregister is None:
@@ -221,6 +231,7 @@ def change_command(
     vc = volume_change(diff, glacier, (density, density_std), models=models, stable=mask, seed=seed)
     note = f"{vc.details['method_note']}. Route {route_reason}"  # the HTML report shows it
     vc = dataclasses.replace(vc, details={**vc.details, "method_note": note})
+    balance = mass_balance(vc, dates)  # m w.e. (per year with --dates)
     profile = hypsometric_profile(diff, glacier, band_sigma=band_sigma_from(vc, grid))
     lines = epoch_breaklines(b.attrs, a.attrs, models)  # the cliffs each map was fitted with
     horizontal = _horizontal_note(b.attrs, a.attrs, models is not None)
@@ -249,9 +260,12 @@ def change_command(
             "hypsometry": profile,
             "outline_wkt": shapely.to_wkt(glacier, rounding_precision=3),
             "breaklines": lines or None,
+            "mass_balance": balance,
         }
         write_volume_tables(vc, tmp / FILES["json"], tmp / FILES["csv"], **extra)
-        write_change_report(tmp / FILES["report"], diff, vc, glacier, profile, breaklines=lines)
+        write_change_report(
+            tmp / FILES["report"], diff, vc, glacier, profile, breaklines=lines, balance=balance
+        )
     if note_h:
         console.print(f"[yellow]heights:[/] {note_h}")
     console.print(f"route: {route} ({route_reason})")
@@ -265,6 +279,7 @@ def change_command(
         f"(mean dh {vc.mean_dh_m:+.3f} +- {vc.mean_dh_std_m:.3f} m; {vc.method}); "
         f"dM = {vc.mass_gt:.6f} +- {vc.mass_std_kg / 1e12:.6f} Gt"
     )
+    console.print(f"mass balance: {balance['note']}")
     console.print(
         f"wrote {', '.join(FILES.values())} in {out_dir} ({time.perf_counter() - t0:.1f} s)"
     )
