@@ -20,12 +20,38 @@ from typing import Any
 
 from .errors import bad_input
 
-__all__ = ["DAYS_PER_YEAR", "WATER_DENSITY", "mass_balance", "survey_years"]
+__all__ = ["DAYS_PER_YEAR", "WATER_DENSITY", "mass_balance", "survey_date_attrs", "survey_years"]
+
+#: Observation times below this are relative (s since a log's start), not UTC (1973-03-03).
+_POSIX_MIN = 1.0e8
 
 #: kg m^-3: metres of water equivalent.
 WATER_DENSITY = 1000.0
 #: Days of a Julian year: decimal years between two dates.
 DAYS_PER_YEAR = 365.25
+
+
+def survey_date_attrs(t_s: Any) -> dict[str, str]:
+    """A map's ``survey_date`` (the UTC date of its samples' median time, ISO) and
+    ``survey_period`` (first / last date) from its samples' observation times ``t_s``
+    (POSIX seconds, as a GNSS log's fixes carry them); ``{}`` when there are none or they
+    are relative (a rover's landmarks: seconds since its log's start)."""
+    import numpy as np
+
+    if t_s is None:
+        return {}
+    t = np.asarray(t_s, float).ravel()
+    t = t[np.isfinite(t)]
+    if not t.size or float(t.min()) < _POSIX_MIN:
+        return {}
+
+    def day(v: float) -> str:
+        return dt.datetime.fromtimestamp(v, dt.UTC).date().isoformat()
+
+    return {
+        "survey_date": day(float(np.median(t))),
+        "survey_period": f"{day(float(t.min()))}/{day(float(t.max()))}",
+    }
 
 
 def survey_years(dates: Any, field: str = "--dates") -> tuple[float, tuple[str, str]]:

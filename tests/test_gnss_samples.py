@@ -271,6 +271,9 @@ def test_cli_maps_a_gpx_profile_and_writes_its_samples(tmp_path):
     err = (ds["elevation"].values - _surface(xx, yy))[inside]
     assert abs(float(np.mean(err))) < 0.3  # the antenna taken off: no 1.8 m offset
     assert float(np.sqrt(np.mean(err**2))) < 1.0
+    # the fixes' UTC date is the map's survey date (glacimap change reads it for the rate)
+    assert ds.attrs["survey_date"] == "2026-07-01"
+    assert ds.attrs["survey_period"] == "2026-07-01/2026-07-01"
 
 
 def test_a_track_without_heights_and_a_receiver_standing_still(tmp_path):

@@ -70,3 +70,35 @@ def test_cli_change_reports_the_mass_balance_per_year(tmp_path):
     never = tmp_path / "never"
     res = runner.invoke(app, [*args, "--dates", "2026-09-01", "2016-09-01", "--out", str(never)])
     assert isinstance(res.exception, InputError) and not never.exists()
+
+
+def test_survey_dates_from_utc_times_and_change_reads_them(tmp_path):
+    from test_cli_change import _write_polygon, runner
+
+    from terrain import Grid, default_outline, default_site
+    from terrain.mass_balance import survey_date_attrs
+    from terrain.product import terrain_dataset
+    from terrain.synthetic import DEFAULT_SITE_BOUNDS
+    from toolkit.cli import app
+
+    t0 = 1_782_864_000.0  # 2026-07-01 00:00 UTC (POSIX)
+    got = survey_date_attrs([t0 + 3600.0, t0 + 90_000.0, t0 + 7200.0])
+    assert got == {"survey_date": "2026-07-01", "survey_period": "2026-07-01/2026-07-02"}
+    assert survey_date_attrs([12.0, 3600.0]) == {}  # a rover's times since its log's start
+    assert survey_date_attrs(None) == {}
+    truth = default_site(resolution=10.0)
+    g = Grid.from_dataarray(truth)
+    std = truth.values * 0 + 0.05
+    for name, dz, day in (("b", 0.0, "2016-09-01"), ("a", -2.0, "2026-09-01")):
+        ds = terrain_dataset(g, truth.values + dz, std, {"seed": 1})
+        ds.attrs["survey_date"] = day
+        ds.to_netcdf(tmp_path / f"{name}.nc", engine="scipy")
+    gpkg = _write_polygon(tmp_path / "g.gpkg", default_outline(DEFAULT_SITE_BOUNDS))
+    out = tmp_path / "out"
+    args = ["change", str(tmp_path / "b.nc"), str(tmp_path / "a.nc"), "--outline", str(gpkg)]
+    res = runner.invoke(app, [*args, "--no-coregister", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    mb = json.loads((out / "volume.json").read_text())["mass_balance"]
+    assert mb["dates"] == ["2016-09-01", "2026-09-01"]
+    assert mb["rate_mwe_a"] == pytest.approx(-1.7 / (3652 / 365.25), rel=1e-9)
+    assert "(the products' survey_date)" in mb["note"]

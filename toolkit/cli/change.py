@@ -158,7 +158,8 @@ def change_command(
         tuple[str, str] | None,
         typer.Option(
             help="BEFORE's and AFTER's survey dates (ISO, e.g. --dates 2015-08-01 2024-08-20): "
-            "the mass balance per year (m w.e. a^-1) and dh/dt beside the period's."
+            "the mass balance per year (m w.e. a^-1) and dh/dt beside the period's. Default: "
+            "the products' survey_date (maps of GNSS logs record it)."
         ),
     ] = None,
     density: Annotated[float, typer.Option(help="Volume-to-mass density, kg m^-3.")] = 850.0,
@@ -231,7 +232,9 @@ def change_command(
     vc = volume_change(diff, glacier, (density, density_std), models=models, stable=mask, seed=seed)
     note = f"{vc.details['method_note']}. Route {route_reason}"  # the HTML report shows it
     vc = dataclasses.replace(vc, details={**vc.details, "method_note": note})
-    balance = mass_balance(vc, dates)  # m w.e. (per year with --dates)
+    dates, note_d = _survey_dates(dates, b.attrs, a.attrs)
+    balance = mass_balance(vc, dates)  # m w.e. (per year with dates)
+    balance["note"] += note_d
     profile = hypsometric_profile(diff, glacier, band_sigma=band_sigma_from(vc, grid))
     lines = epoch_breaklines(b.attrs, a.attrs, models)  # the cliffs each map was fitted with
     horizontal = _horizontal_note(b.attrs, a.attrs, models is not None)
@@ -283,6 +286,24 @@ def change_command(
     console.print(
         f"wrote {', '.join(FILES.values())} in {out_dir} ({time.perf_counter() - t0:.1f} s)"
     )
+
+
+def _survey_dates(dates: Any, before: dict, after: dict) -> tuple[Any, str]:
+    """``--dates``, else both products' ``survey_date`` (a GNSS log's map records it), and
+    where they came from."""
+    if dates is not None:
+        return dates, " (--dates)"
+    found = (before.get("survey_date"), after.get("survey_date"))
+    if not all(found):
+        return None, ""
+    from terrain.errors import InputError
+    from terrain.mass_balance import survey_years
+
+    try:
+        survey_years(found)
+    except InputError:  # the same day, or AFTER surveyed first: said, no rate
+        return None, f" (the products' survey dates {found[0]} -> {found[1]}: pass --dates)"
+    return found, " (the products' survey_date)"
 
 
 def same_heights(b: Any, a: Any, given_b: str | None, given_a: str | None) -> tuple[Any, str]:

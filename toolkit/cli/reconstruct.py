@@ -386,6 +386,9 @@ def _reconstruct_csv(
             "constrain most of this grid; narrow --bounds or add samples"
         )
     rec.product.attrs.update(heights)  # a CSV's datum, or that it is not stated
+    from terrain.mass_balance import survey_date_attrs
+
+    rec.product.attrs.update(survey_date_attrs(survey.extra.get("t_s")))  # a log's UTC dates
     if as_data is not None:
         rec.product.attrs["prior_as_data"] = as_data.note()
     if choice is not None:
