@@ -178,6 +178,9 @@ def test_process_chooses_the_reading_and_certifies_it(tmp_path):
     )
     assert r.exit_code == 0, r.output
     attrs = xr.open_dataset(out / "product.nc").attrs
+    # the landmarks' rover-clock times + survey.json's clock offset (1782936000 s: 2026-07-01
+    # 20:00 UTC) date the map (glacimap change reads it for a mass-balance rate)
+    assert attrs["survey_date"] == "2026-07-01"
     cert = json.loads((out / "certificate.json").read_text())
     record = cert["reconstruction"]["prior_reading"]
     assert record == json.loads(attrs["prior_reading"])

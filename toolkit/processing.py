@@ -193,6 +193,18 @@ def _named_by_file(mean: RasterMean) -> RasterMean:
     return mean
 
 
+def _survey_dates(samples: Any, ingest_report: dict[str, Any]) -> dict[str, str]:
+    """The map's ``survey_date`` / ``survey_period`` (UTC): the landmarks' times on the rover
+    clock plus the field folder's clock offset (``utc = t_rover + clock_offset_s``); ``{}``
+    for a log without one (a simulated log's clock is not UTC)."""
+    from terrain.mass_balance import survey_date_attrs
+
+    t_s, offset = samples.extra.get("t_s"), ingest_report.get("clock_offset_s")
+    if t_s is None or offset is None:
+        return {}
+    return survey_date_attrs(np.asarray(t_s, float) + float(offset))
+
+
 def _control_and_checkpoints(control: Any, checkpoints: Any, log: MeasurementLog):
     from factorgraph.control import ControlPoints, check_independent
     from factorgraph.control_io import read_control
@@ -389,6 +401,7 @@ def _process(
         rec.product.attrs["inputs"] = json.dumps(
             [{k: r[k] for k in ("role", "name", "sha256")} for r in files]
         )
+        rec.product.attrs.update(_survey_dates(sel.samples, ingest_report))
     with staged_folder(out) as tmp_out:
         from .products import write_products
 
