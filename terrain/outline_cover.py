@@ -61,9 +61,9 @@ def check_outline_covered(outline: Any, grid: Grid, field: str = "outline") -> d
         raise bad_input(
             field,
             f"{100 * cover['outside_share']:.1f} % of its {cover['area_m2']:,.0f} m^2 beyond the "
-            f"change grid ({w}, {s}, {e}, {n})",
-            "an outline the two DEMs cover (the volume of the part they cover would be read as "
-            "the glacier's)",
+            "change grid",
+            f"an outline the two DEMs cover (their common grid: W {w}, S {s}, E {e}, N {n}; the "
+            "volume of the part they cover would be read as the glacier's)",
             "clip it to the DEMs (glacimap change --clip-outline; in Python "
             "outline.intersection(shapely.box(*grid.bounds))), pick the glaciers they cover "
             "(--outline-where), or supply DEMs that cover it",
