@@ -30,24 +30,25 @@ sys.path.insert(0, str(HERE))
 from _harness import table, write_json  # noqa: E402
 
 RESULTS = HERE / "results"
-#: The files that hold the standing: 0.45.0's re-runs (session 46: the fits draw over the
-#: samples in order of position, a new draw of every map; docs/terrain.md "The map no longer
-#: follows the samples' order") where they were made, 0.32.0-0.34.0's elsewhere: window 0,
-#: the ten windows, a third window of each DEM, bilinear facets, 80-node windows, and a
-#: survey that kept to its tracks (2 % scattered).
+#: The files that hold the standing: every row at the samples'-position draw (session 46:
+#: the fits draw over the samples in order of position, a new draw of every map; docs/
+#: terrain.md "The map no longer follows the samples' order"): 0.45.0's re-runs (session
+#: 46) and, for the files still at 0.32.0-0.34.0's draw then, session 48's (0.46.0's map,
+#: the same as 0.45.0's): window 0, the ten windows, a third window of each DEM, bilinear
+#: facets, 80-node windows, and a survey that kept to its tracks (2 % scattered).
 STANDING = (
     "real_terrain_s46_3k.json",
-    "real_terrain_s33_5k_20k.json:5000",  # its 20k rows are 0.32.0's
-    "real_terrain_conditioned_windows_s32_10k.json",
-    "real_terrain_spread_windows_s33_20k.json",
+    "real_terrain_s48_5k.json",
+    "real_terrain_s48_10k.json",
+    "real_terrain_s48_20k.json",
     "real_terrain_spread_windows_s46_50k.json",
     "real_terrain_tenwin_s46_3k.json",
-    "real_terrain_tenwin_conditioned_windows_s32_10k.json",
-    "real_terrain_tenwin_spread_windows_s33_50k.json",
+    "real_terrain_tenwin_s48_10k.json",
+    "real_terrain_tenwin_s48_50k.json",
     "real_terrain_newwin_s46_3k.json",
     "real_terrain_newwin_s46_50k.json",
     "real_terrain_linear_s46_3k.json",
-    "real_terrain_linear_s34_50k.json",
+    "real_terrain_linear_s48_50k.json",
     "real_terrain_nodes80_s46_3k.json",
     "real_terrain_nodes80_s46_50k.json",
     "real_terrain_scattered2_s46_3k.json",
