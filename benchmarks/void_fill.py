@@ -33,10 +33,10 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "scripts"))
+import real_dems  # noqa: E402
 from _harness import real_dems_or_skip, table, write_json  # noqa: E402
 
-SITES = ("olinda", "lux", "rm", "prism", "glacier", "bei", "gorillas", "clm", "volcano",
-         "jacksboro", "topobathy")  # fmt: skip
+SITES = real_dems.NAMES  # the eleven real DEMs
 DESIGNS = ("anywhere", "high")
 
 
@@ -53,8 +53,6 @@ def _field(shape: tuple[int, int], scale_cells: float, rng: np.random.Generator)
 def site_case(
     name: str, trials: int, seed: int, scale_m: float = 100.0, radius_m=(100.0, 300.0)
 ) -> list[dict[str, Any]]:
-    import real_dems
-
     from terrain import Grid, default_outline
     from terrain.void_fill import hypsometric_fill
     from terrain.volume import outline_weights
