@@ -76,13 +76,14 @@ def checkpoints_in_dem_datum(
     lon, lat = np.asarray(lon, float), np.asarray(lat, float)
     ok &= np.isfinite(lon) & np.isfinite(lat)  # unprojectable rows: counted by certify
 
-    def undulation(datum: str) -> np.ndarray:
+    def undulation(datum: str, field: str) -> np.ndarray:
         n = np.zeros(cps.n)
-        if datum != "ellipsoidal":
-            n[ok] = geoid_height(lon[ok], lat[ok], datum, "--checkpoint-heights")
+        if datum != "ellipsoidal":  # errors name the option of the datum that needs a grid
+            n[ok] = geoid_height(lon[ok], lat[ok], datum, field)
         return n
 
-    shift = undulation(d_cp) - undulation(d_dem)  # h = H + N: into the DEM's datum
+    # h = H + N: into the DEM's datum
+    shift = undulation(d_cp, "--checkpoint-heights") - undulation(d_dem, "--dem-heights")
     record["shift_m"] = float(np.mean(shift[ok])) if ok.any() else 0.0
     record["note"] = (
         f"checkpoint heights above {datum_words(d_cp)} carried to the DEM's "
