@@ -254,3 +254,18 @@ def test_an_inventory_glacier_is_picked_and_an_outline_beyond_the_dems_refused(e
     note = next(t for t in vol["notes"] if "clipped" in t)
     assert f"({cut:.1f} %) cut" in note
     assert vol["area_m2"] > own["area_m2"]  # the straddler's covered part joins
+    # one row per glacier of the whole inventory: the far one counted, the straddler's
+    # covered part (2/3 of it), the volumes adding up to the clipped union's
+    res, out = change("table", "--outline", str(inventory), "--clip-outline",
+                      "--per-glacier", "RGIId")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    vol = json.loads((out / "volume.json").read_text())
+    rows = list(csv.DictReader((out / "glaciers.csv").open()))
+    assert [r["id"] for r in rows] == ["RGI60-01.00001", "RGI60-01.00003"]
+    assert vol["glaciers"]["note"] == "2 of 3 glaciers in the table; 1 beyond the DEMs"
+    assert float(rows[0]["volume_m3"]) == pytest.approx(own["volume_m3"], rel=1e-6)
+    assert float(rows[1]["covered_share"]) == pytest.approx(1 / 3, abs=1e-9)
+    total = sum(float(r["volume_m3"]) for r in rows)
+    assert total == pytest.approx(vol["volume_m3"], rel=1e-9)
+    res, out = change("bad_id", "--outline", str(inventory), "--per-glacier", "rgi_id")
+    assert "--outline attribute" in str(res.exception) and "RGIId" in str(res.exception)

@@ -20,7 +20,7 @@ import numpy as np
 
 from terrain.errors import InputError, bad_input
 
-__all__ = ["read_geometries"]
+__all__ = ["read_features", "read_geometries"]
 
 _WKT_TYPES = (b"POINT", b"LINESTRING", b"POLYGON", b"MULTI", b"GEOMETRYCOLLECTION")
 
@@ -40,25 +40,36 @@ def _could_be_lonlat(geoms: list) -> bool:
     )
 
 
-def _where(path: Path, field: str, where: str, info: dict) -> tuple[list, str]:
-    """The geometries of the features ``where`` selects and the selection in words."""
+def _where(
+    path: Path, field: str, where: str | None, info: dict, attribute: str | None
+) -> tuple[list, list | None, str]:
+    """The geometries of the features ``where`` selects (all without it), their
+    ``attribute`` values, and the selection in words."""
     import pyogrio
     import shapely
 
     names = ", ".join(map(str, info.get("fields", []))) or "(none)"
+    if attribute is not None and attribute not in list(info.get("fields", [])):
+        raise bad_input(f"{field} attribute", attribute, f"one of {path.name}'s attributes",
+                        f"its attributes: {names}")  # fmt: skip
+    if not info["features"]:
+        return [], [] if attribute else None, ""
     try:
-        wkb = pyogrio.raw.read(path, where=where)[2]
+        got = pyogrio.raw.read(path, where=where, columns=[attribute] if attribute else [])
     except Exception as exc:  # pyogrio's FieldError / DataLayerError: the clause
         raise bad_input(
             f"{field}-where", where, "an OGR SQL WHERE clause on the file's attributes",
             f"{path.name}'s attributes: {names} (e.g. \"RGIId = 'RGI60-07.01482'\"); {exc}",
         ) from exc  # fmt: skip
-    if not len(wkb):
+    wkb = got[2]
+    values = [str(v) for v in got[3][0]] if attribute else None
+    if where and not len(wkb):
         raise bad_input(
             f"{field}-where", where, f"a clause that selects features of {path.name}",
             f"{path.name}'s attributes: {names}; it has {info['features']} features",
         )  # fmt: skip
-    return list(shapely.from_wkb(wkb)), f"{len(wkb)} of {info['features']} features: {where}"
+    said = f"{len(wkb)} of {info['features']} features: {where}" if where else ""
+    return list(shapely.from_wkb(wkb)) if len(wkb) else [], values, said
 
 
 def read_geometries(
@@ -77,6 +88,22 @@ def read_geometries(
     when its coordinates look like longitude / latitude for a projected ``crs`` and it
     declares no CRS.
     """
+    geoms, _, note = read_features(path, field, crs, where)
+    return geoms, note
+
+
+def read_features(
+    path: Path, field: str, crs: Any = None, where: str | None = None, attribute: str | None = None
+) -> tuple[list, list | None, str]:
+    """:func:`read_geometries` with each kept feature's ``attribute`` value (text; ``None``
+    without one): an inventory's glacier IDs beside their outlines.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_geometries`, and an ``attribute`` the file does not have (its
+        attributes listed) or a WKT file asked for one.
+    """
     import shapely
     from pyproj import CRS, Transformer
 
@@ -86,22 +113,23 @@ def read_geometries(
                         "Shapefile, WKT...)", "check the path")  # fmt: skip
     declared = None
     selected = ""
+    values = None
     try:
         if _is_wkt(path):
-            if where:
-                raise bad_input(f"{field}-where", where, "a vector file with attributes",
-                                f"{path.name} is WKT lines: select the lines by hand")  # fmt: skip
+            if where or attribute:
+                raise bad_input(
+                    f"{field}-where",
+                    where or attribute,
+                    "a vector file with attributes",
+                    f"{path.name} is WKT lines: select by hand",
+                )
             text = path.read_text(encoding="utf-8")
             geoms = [shapely.from_wkt(t) for t in text.splitlines() if t.strip()]
         else:
             import pyogrio
 
             info = pyogrio.read_info(path)
-            if where:
-                geoms, selected = _where(path, field, where, info)
-            else:
-                wkb = pyogrio.raw.read(path)[2] if info["features"] else []
-                geoms = list(shapely.from_wkb(wkb)) if len(wkb) else []
+            geoms, values, selected = _where(path, field, where, info, attribute)
             declared = CRS.from_user_input(info["crs"]) if info.get("crs") else None
     except InputError:
         raise
@@ -109,13 +137,12 @@ def read_geometries(
         raise bad_input(field, path.name, "a vector file GDAL reads, or WKT lines",
                         f"the file does not parse: {exc}") from exc  # fmt: skip
     field = f"{field} ({selected})" if selected else field
-    kept = [g for g in geoms if g is not None and not g.is_empty]
-    left = (
-        f" ({len(geoms) - len(kept)} empty geometries left out)" if len(kept) < len(geoms) else ""
-    )
-    geoms = kept
+    keep = [g is not None and not g.is_empty for g in geoms]
+    left = f" ({keep.count(False)} empty geometries left out)" if not all(keep) else ""
+    geoms = [g for g, k in zip(geoms, keep, strict=True) if k]
+    values = None if values is None else [v for v, k in zip(values, keep, strict=True) if k]
     if crs is None or not geoms:
-        return geoms, f"{field}: read as is{left}"
+        return geoms, values, f"{field}: read as is{left}"
     target = CRS.from_user_input(crs)
     lonlat = _could_be_lonlat(geoms)
     if declared is not None and declared.is_geographic and not lonlat:
@@ -129,9 +156,9 @@ def read_geometries(
                 "declares its CRS",
                 "reproject it (e.g. ogr2ogr -t_srs <map CRS>) or save it as a GeoPackage",
             )
-        return geoms, f"{field}: no CRS declared: read in the map's CRS{left}"
+        return geoms, values, f"{field}: no CRS declared: read in the map's CRS{left}"
     if declared.equals(target, ignore_axis_order=True):
-        return geoms, f"{field}: same CRS{left}"
+        return geoms, values, f"{field}: same CRS{left}"
     t = Transformer.from_crs(declared, target, always_xy=True)
     geoms = [shapely.transform(g, t.transform, interleaved=False) for g in geoms]
-    return geoms, f"{field}: reprojected from {declared.to_string()}{left}"
+    return geoms, values, f"{field}: reprojected from {declared.to_string()}{left}"

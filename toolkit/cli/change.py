@@ -107,6 +107,14 @@ def change_command(
             "\"RGIId = 'RGI60-07.01482'\" for one glacier of an inventory file."
         ),
     ] = None,
+    per_glacier: Annotated[
+        str | None,
+        typer.Option(
+            help="The outline file's ID attribute (e.g. RGIId): also each glacier's volume "
+            "change and mass balance, one row each in glaciers.csv (stable ground: outside "
+            "every glacier, or --stable)."
+        ),
+    ] = None,
     clip_outline: Annotated[
         bool,
         typer.Option(
@@ -203,6 +211,12 @@ def change_command(
     a, note_h = same_heights(b, a, heights_before, heights_after)  # one vertical datum
     crs, _ = change_crs(b, a)  # the CRS dh is mapped in (a DEM in degrees is projected)
     glacier, note_o = read_polygons(outline, "--outline", crs, where=outline_where)
+    inventory = None
+    if per_glacier is not None:  # each feature with its ID (the same selection)
+        from ..vector_io import read_features
+
+        geoms, ids, _ = read_features(outline, "--outline", crs, outline_where, per_glacier)
+        inventory = [(i, g) for i, g in zip(ids, geoms, strict=True) if g.area > 0]
     stable_geom, note_s = (None, "")
     if stable is not None:
         stable_geom, note_s = read_polygons(stable, "--stable", crs)
@@ -235,6 +249,16 @@ def change_command(
     dates, note_d = _survey_dates(dates, b.attrs, a.attrs)
     balance = mass_balance(vc, dates)  # m w.e. (per year with dates)
     balance["note"] += note_d
+    glaciers = None
+    if inventory is not None:  # one volume per glacier, the same stable ground for all
+        from ..change_glaciers import glacier_rows
+
+        rows, note_g = glacier_rows(
+            diff, [g for _, g in inventory], [i for i, _ in inventory],
+            density=(density, density_std), models=models, stable=mask, seed=seed,
+            dates=dates, clip=clip_outline,
+        )  # fmt: skip
+        glaciers = {"id_attribute": per_glacier, "note": note_g, "rows": rows}
     profile = hypsometric_profile(diff, glacier, band_sigma=band_sigma_from(vc, grid))
     lines = epoch_breaklines(b.attrs, a.attrs, models)  # the cliffs each map was fitted with
     horizontal = _horizontal_note(b.attrs, a.attrs, models is not None)
@@ -264,11 +288,16 @@ def change_command(
             "outline_wkt": shapely.to_wkt(glacier, rounding_precision=3),
             "breaklines": lines or None,
             "mass_balance": balance,
+            **({"glaciers": glaciers} if glaciers is not None else {}),
         }
         write_volume_tables(vc, tmp / FILES["json"], tmp / FILES["csv"], **extra)
         write_change_report(
             tmp / FILES["report"], diff, vc, glacier, profile, breaklines=lines, balance=balance
         )
+        if glaciers is not None:
+            from ..change_glaciers import write_glacier_table
+
+            write_glacier_table(glaciers["rows"], tmp / "glaciers.csv")
     if note_h:
         console.print(f"[yellow]heights:[/] {note_h}")
     console.print(f"route: {route} ({route_reason})")
@@ -283,6 +312,8 @@ def change_command(
         f"dM = {vc.mass_gt:.6f} +- {vc.mass_std_kg / 1e12:.6f} Gt"
     )
     console.print(f"mass balance: {balance['note']}")
+    if glaciers is not None:
+        console.print(f"per glacier ({per_glacier}): {glaciers['note']}; glaciers.csv")
     console.print(
         f"wrote {', '.join(FILES.values())} in {out_dir} ({time.perf_counter() - t0:.1f} s)"
     )
