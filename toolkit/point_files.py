@@ -68,19 +68,23 @@ def point_format(path: str | Path) -> str | None:
 def is_controller_csv(path: str | Path) -> bool:
     """Whether the file ``path`` is a controller export's CSV (a GNSS log, cloud, layer or
     Parquet table is not; a table the reader refuses is said where it is read)."""
+    import csv
+
     from factorgraph.field.controller_csv import is_controller_export
-    from factorgraph.field.table import read_text_table
-    from terrain.errors import InputError
+    from factorgraph.field.table import csv_dialect
 
     from .gnss_samples import gnss_format
 
     path = Path(path)
     if point_format(path) or gnss_format(path) or path.suffix.lower() == ".parquet":
         return False
-    try:
-        return is_controller_export(read_text_table(path, "SAMPLES").header)
-    except InputError:
+    try:  # the header line only: the table itself is read (once) by the samples' reader
+        dialect = csv_dialect(path)
+        with open(path, encoding=dialect["encoding"], errors="replace") as fh:
+            line = next((ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")), "")
+    except OSError:
         return False
+    return is_controller_export(next(csv.reader([line], delimiter=dialect["sep"]), []))
 
 
 def point_classes_option(text: str | None) -> tuple[int, ...] | None:
