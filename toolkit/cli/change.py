@@ -210,13 +210,17 @@ def change_command(
     a = read_dem(where_a.raster, "AFTER")
     a, note_h = same_heights(b, a, heights_before, heights_after)  # one vertical datum
     crs, _ = change_crs(b, a)  # the CRS dh is mapped in (a DEM in degrees is projected)
-    glacier, note_o = read_polygons(outline, "--outline", crs, where=outline_where)
     inventory = None
-    if per_glacier is not None:  # each feature with its ID (the same selection)
+    if per_glacier is None:
+        glacier, note_o = read_polygons(outline, "--outline", crs, where=outline_where)
+    else:  # each feature with its ID; the glacier the union of those with an area
         from ..vector_io import read_features
 
-        geoms, ids, _ = read_features(outline, "--outline", crs, outline_where, per_glacier)
+        geoms, ids, note_o = read_features(outline, "--outline", crs, outline_where, per_glacier)
         inventory = [(i, g) for i, g in zip(ids, geoms, strict=True) if g.area > 0]
+        if not inventory:
+            raise bad_input("--outline", str(outline), "at least one polygon", "draw them")
+        glacier = shapely.union_all([g for _, g in inventory])
     stable_geom, note_s = (None, "")
     if stable is not None:
         stable_geom, note_s = read_polygons(stable, "--stable", crs)
